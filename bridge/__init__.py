@@ -1,0 +1,1 @@
+"""The running program: MAVLink link, mixer, per-wing controller, parameters, telemetry, CLI."""

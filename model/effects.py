@@ -1,0 +1,241 @@
+"""Unmodelled effects of a tendon-sheath wing, as small augmentations of the plant.
+
+Each effect of the design brief's table is one operator with one or two
+parameters, placed where it acts physically. The augmented plant is the chain::
+
+    u_cmd -> delay -> rate_limit -> backlash -> pretension -> Bouc-Wen forward
+          (friction scales az) -> aero_load -> w_true -> sensor_lag -> drift -> w_meas
+
+| name        | parameters                     | operator                                             |
+|-------------|--------------------------------|------------------------------------------------------|
+| delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
+| rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
+| backlash    | backlash_mm                    | play operator of total width backlash_mm             |
+| friction    | friction_scale                 | az -> friction_scale * az (loop widens or narrows)   |
+| pretension  | pretension_offset_mm, _gain    | u_eff = gain * (u - offset)                          |
+| sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
+| drift       | drift_deg_s                    | w_meas += drift_deg_s * (t - t0)                     |
+| aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
+
+All operators are plain functions on arrays (compiled) plus a per-sample state
+machine in ``model.plant`` that gives the same results.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+from numba import njit
+
+RHO_AIR = 1.225  # kg/m^3, sea-level standard
+
+EFFECT_NAMES: tuple[str, ...] = (
+    "delay", "rate_limit", "backlash", "friction", "pretension", "sensor_lag", "drift", "aero_load",
+)
+
+# effect name -> (field names, neutral values, physical meaning)
+EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
+    "delay": (("delay_s",), (0.0,), "pure transport delay between command and tendon motion"),
+    "rate_limit": (("rate_mm_s",), (math.inf,), "servo slew-rate limit"),
+    "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
+    "friction": (("friction_scale",), (1.0,), "sheath friction changed: the hysteresis widens or narrows"),
+    "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
+                   "pre-tension changed: the loop shifts in input and scales"),
+    "sensor_lag": (("sensor_tau_s",), (0.0,), "first-order lag in the warp measurement"),
+    "drift": (("drift_deg_s",), (0.0,), "slow drift of the warp sensor's zero over the log"),
+    "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
+                  "airspeed-dependent load on the trailing edge: warp lost in proportion to dynamic pressure"),
+}
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Magnitudes of every effect; the defaults are neutral (no effect)."""
+
+    delay_s: float = 0.0
+    rate_mm_s: float = math.inf
+    backlash_mm: float = 0.0
+    friction_scale: float = 1.0
+    pretension_offset_mm: float = 0.0
+    pretension_gain: float = 1.0
+    sensor_tau_s: float = 0.0
+    drift_deg_s: float = 0.0
+    aero_gain_per_kpa: float = 0.0
+    aero_deg_per_kpa: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, (int, float)) or math.isnan(v):
+                raise ValueError(f"effect parameter {f.name} must be a number")
+            object.__setattr__(self, f.name, float(v))
+        if self.delay_s < 0 or self.backlash_mm < 0 or self.sensor_tau_s < 0:
+            raise ValueError("delay, backlash and sensor lag cannot be negative")
+        if not self.rate_mm_s > 0:
+            raise ValueError("rate limit must be positive")
+        if not self.friction_scale > 0 or not self.pretension_gain > 0:
+            raise ValueError("friction scale and pre-tension gain must be positive")
+
+    def active(self) -> list[str]:
+        """Names of the effects whose parameters differ from neutral."""
+        out = []
+        for name, (names, neutral, _) in EFFECT_FIELDS.items():
+            if any(getattr(self, f) != v for f, v in zip(names, neutral, strict=True)):
+                out.append(name)
+        return out
+
+    def only(self, names) -> Effects:
+        """A copy keeping just the named effects (others neutral)."""
+        keep = set(names)
+        kw = {}
+        for name, (fnames, neutral, _) in EFFECT_FIELDS.items():
+            if name not in keep:
+                kw.update(dict(zip(fnames, neutral, strict=True)))
+        return replace(self, **kw)
+
+    def merged(self, other: Effects) -> Effects:
+        """``other``'s active effects on top of these."""
+        kw = {}
+        for name in other.active():
+            for f in EFFECT_FIELDS[name][0]:
+                kw[f] = getattr(other, f)
+        return replace(self, **kw)
+
+    def to_dict(self) -> dict[str, dict[str, float]]:
+        """{effect name: {parameter: value}} for the active effects."""
+        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0]} for name in self.active()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Effects:
+        if not isinstance(d, dict):
+            raise ValueError("effects must be an object of {name: {parameter: value}}")
+        kw: dict[str, float] = {}
+        for name, params in d.items():
+            if name not in EFFECT_FIELDS:
+                raise ValueError(f"unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+            if not isinstance(params, dict):
+                raise ValueError(f"effect {name!r} needs an object of parameters")
+            for f, v in params.items():
+                if f not in EFFECT_FIELDS[name][0]:
+                    raise ValueError(f"effect {name!r} has no parameter {f!r}")
+                try:
+                    kw[f] = float(v)
+                except (TypeError, ValueError):
+                    raise ValueError(f"effect parameter {f!r} must be a number") from None
+        return cls(**kw)
+
+
+def dynamic_pressure_kpa(airspeed) -> np.ndarray:
+    """q = rho V^2 / 2 in kPa for airspeed in m/s (NaN airspeed counts as 0)."""
+    v = np.nan_to_num(np.asarray(airspeed, dtype=np.float64), nan=0.0)
+    return 0.5 * RHO_AIR * v * v / 1000.0
+
+
+# ---- input-side operators (on tendon travel u, mm) -------------------------------------------
+
+@njit(cache=True)
+def delayed(t, u, delay_s):
+    """u(t - delay_s) by linear interpolation; before the log starts, u[0]."""
+    n = t.shape[0]
+    out = np.empty(n)
+    j = 0
+    for k in range(n):
+        tk = t[k] - delay_s
+        if tk <= t[0]:
+            out[k] = u[0]
+            continue
+        while j + 1 < n and t[j + 1] < tk:
+            j += 1
+        if j + 1 >= n:
+            out[k] = u[n - 1]
+        else:
+            dt = t[j + 1] - t[j]
+            a = (tk - t[j]) / dt if dt > 0 else 1.0
+            out[k] = u[j] + a * (u[j + 1] - u[j])
+    return out
+
+
+@njit(cache=True)
+def rate_limited(t, u, rate, y0):
+    """Tendon travel following u with at most ``rate`` mm/s of slew."""
+    n = t.shape[0]
+    out = np.empty(n)
+    y = y0
+    tp = t[0]
+    for k in range(n):
+        step = rate * (t[k] - tp)
+        d = u[k] - y
+        if d > step:
+            d = step
+        elif d < -step:
+            d = -step
+        y += d
+        tp = t[k]
+        out[k] = y
+    return out
+
+
+@njit(cache=True)
+def play(u, width, y0):
+    """Play (backlash) operator of total width ``width``: output moves only after the
+    input has taken up the slack since the last reversal."""
+    n = u.shape[0]
+    out = np.empty(n)
+    r = 0.5 * width
+    y = y0
+    for k in range(n):
+        if u[k] - r > y:
+            y = u[k] - r
+        elif u[k] + r < y:
+            y = u[k] + r
+        out[k] = y
+    return out
+
+
+# ---- output-side operators (on warp, deg) ----------------------------------------------------
+
+@njit(cache=True)
+def lagged(t, w, tau, y0):
+    """First-order lag with time constant tau (s), exact for input held over each step."""
+    n = t.shape[0]
+    out = np.empty(n)
+    y = y0
+    tp = t[0]
+    for k in range(n):
+        dt = t[k] - tp
+        a = math.exp(-dt / tau) if tau > 0 else 0.0
+        y = a * y + (1.0 - a) * w[k]
+        tp = t[k]
+        out[k] = y
+    return out
+
+
+def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash, pretension)."""
+    x = np.ascontiguousarray(u, dtype=np.float64)
+    if eff.delay_s > 0:
+        x = delayed(t, x, eff.delay_s)
+    if math.isfinite(eff.rate_mm_s):
+        x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
+    if eff.backlash_mm > 0:
+        x = play(x, eff.backlash_mm, float(x[0]) - 0.5 * eff.backlash_mm)
+    if eff.pretension_gain != 1.0 or eff.pretension_offset_mm != 0.0:
+        x = eff.pretension_gain * (x - eff.pretension_offset_mm)
+    return x
+
+
+def apply_output_effects(eff: Effects, t: np.ndarray, w_model: np.ndarray, airspeed=None,
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """(w_true, w_meas): aero load on the warp, then sensor lag and drift on its measurement."""
+    w = np.asarray(w_model, dtype=np.float64)
+    if (eff.aero_gain_per_kpa != 0.0 or eff.aero_deg_per_kpa != 0.0) and airspeed is not None:
+        q = dynamic_pressure_kpa(airspeed)
+        w = w * (1.0 - eff.aero_gain_per_kpa * q) - eff.aero_deg_per_kpa * q
+    w_meas = w
+    if eff.sensor_tau_s > 0:
+        w_meas = lagged(t, np.ascontiguousarray(w_meas), eff.sensor_tau_s, float(w_meas[0]))
+    if eff.drift_deg_s != 0.0:
+        w_meas = w_meas + eff.drift_deg_s * (t - t[0])
+    return w, w_meas

@@ -1,0 +1,90 @@
+"""MODEL.json as a plain dict (``"format": "warpbridge-model/1"``) and back; no file I/O here.
+
+A model file holds the Bouc-Wen parameters, the initial state, optional
+effects (applied by ``predict`` and the bridge's feed-forward), the fit
+quality ``identify`` measured and free-form provenance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from model.boucwen import BoucWenParams
+from model.effects import Effects
+from model.plant import Plant
+
+FORMAT = "warpbridge-model/1"
+
+
+@dataclass
+class FitQuality:
+    """What identification measured: RMS on the training and held-out parts, noise floor (deg)."""
+
+    train_rms_deg: float = math.nan
+    heldout_rms_deg: float = math.nan
+    noise_deg: float = math.nan
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = {"train_rms_deg": self.train_rms_deg, "heldout_rms_deg": self.heldout_rms_deg,
+             "noise_deg": self.noise_deg}
+        d.update(self.extra)
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FitQuality:
+        def num(k):
+            v = d.get(k)
+            return math.nan if v is None else float(v)
+        extra = {k: v for k, v in d.items() if k not in ("train_rms_deg", "heldout_rms_deg", "noise_deg")}
+        return cls(num("train_rms_deg"), num("heldout_rms_deg"), num("noise_deg"), extra)
+
+
+@dataclass
+class ModelFile:
+    """Everything a MODEL.json carries."""
+
+    params: BoucWenParams
+    effects: Effects = field(default_factory=Effects)
+    z0: float = 0.0
+    fit: FitQuality = field(default_factory=FitQuality)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def plant(self) -> Plant:
+        return Plant(self.params, self.effects)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "model": "generalized-bouc-wen",
+            "units": {"u": "mm", "warp": "deg", "t": "s", "airspeed": "m/s"},
+            "params": self.params.to_dict(),
+            "z0": self.z0,
+            "effects": self.effects.to_dict(),
+            "fit": self.fit.to_dict(),
+            "meta": self.meta,
+        }
+
+    @classmethod
+    def from_dict(cls, d) -> ModelFile:
+        if not isinstance(d, dict):
+            raise ValueError("a model file must hold a JSON object")
+        fmt = d.get("format")
+        if fmt is None:
+            raise ValueError("not a warpbridge model file (no \"format\" field)")
+        if not isinstance(fmt, str) or not fmt.startswith("warpbridge-model/"):
+            raise ValueError(f"not a warpbridge model file (format {fmt!r})")
+        if fmt != FORMAT:
+            raise ValueError(f"unsupported model format version {fmt!r} (this warpbridge reads {FORMAT!r})")
+        if "params" not in d:
+            raise ValueError("model file has no \"params\"")
+        params = BoucWenParams.from_dict(d["params"])
+        effects = Effects.from_dict(d.get("effects") or {})
+        try:
+            z0 = float(d.get("z0", 0.0))
+        except (TypeError, ValueError):
+            raise ValueError("model file z0 must be a number") from None
+        fit = FitQuality.from_dict(d.get("fit") or {})
+        return cls(params=params, effects=effects, z0=z0, fit=fit, meta=dict(d.get("meta") or {}))

@@ -1,0 +1,119 @@
+"""The augmented tendon-sheath plant: Bouc-Wen forward map wrapped in the effects chain.
+
+``Plant.simulate`` runs a whole log (tendon command u(t), optional airspeed)
+and returns true and measured warp; ``PlantStepper`` does the same one sample
+at a time for lock-step simulation and gives identical results.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from model import kernels as K
+from model.boucwen import BoucWenParams, forward, rest_warp
+from model.effects import Effects, apply_input_effects, apply_output_effects, dynamic_pressure_kpa
+
+
+@dataclass(frozen=True)
+class Plant:
+    """A Bouc-Wen tendon-sheath model plus unmodelled effects."""
+
+    params: BoucWenParams
+    effects: Effects = field(default_factory=Effects)
+
+    def core_params(self) -> BoucWenParams:
+        """Bouc-Wen parameters with the friction effect folded in (az scaled)."""
+        if self.effects.friction_scale == 1.0:
+            return self.params
+        return replace(self.params, az=self.params.az * self.effects.friction_scale)
+
+    def simulate(self, t, u, airspeed=None, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(w_true, w_meas) in deg for tendon command u (mm) sampled at times t (s)."""
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        if t.shape != u.shape:
+            raise ValueError("t and u must have the same length")
+        if t.size == 0:
+            return np.empty(0), np.empty(0)
+        x = apply_input_effects(self.effects, t, u)
+        w, _, _ = forward(self.core_params(), x, z0=z0)
+        return apply_output_effects(self.effects, t, w, airspeed)
+
+
+class PlantStepper:
+    """Per-sample version of ``Plant.simulate`` (same operators, same order)."""
+
+    def __init__(self, plant: Plant, t0: float, u0: float, z0: float = 0.0) -> None:
+        self.plant = plant
+        self._p = plant.core_params().to_array()
+        e = plant.effects
+        self._hist: deque[tuple[float, float]] = deque()
+        self._t_prev = float(t0)
+        self._t0 = float(t0)
+        self._u0 = float(u0)
+        self._rate_y = float(u0)
+        self._play_y = float(u0) - 0.5 * e.backlash_mm
+        x0 = self._play_y if e.backlash_mm > 0 else float(u0)
+        if e.pretension_gain != 1.0 or e.pretension_offset_mm != 0.0:
+            x0 = e.pretension_gain * (x0 - e.pretension_offset_mm)
+        self.w = rest_warp(plant.core_params(), x0, z0)
+        self.z = float(z0)
+        self._lag_y: float | None = None
+
+    def _delayed(self, t: float, u: float) -> float:
+        d = self.plant.effects.delay_s
+        self._hist.append((t, u))
+        if d <= 0:
+            return u
+        tk = t - d
+        h = self._hist
+        if tk <= self._t0:
+            return self._u0
+        # drop history no longer needed (keep one sample at or before tk)
+        while len(h) >= 2 and h[1][0] < tk:
+            h.popleft()
+        if len(h) == 1:
+            return h[0][1]
+        (ta, ua), (tb, ub) = h[0], h[1]
+        a = (tk - ta) / (tb - ta) if tb > ta else 1.0
+        return ua + a * (ub - ua)
+
+    def step(self, t: float, u: float, airspeed: float | None = None) -> tuple[float, float]:
+        """Advance to time t with command u; returns (w_true, w_meas)."""
+        e = self.plant.effects
+        x = self._delayed(float(t), float(u))
+        if math.isfinite(e.rate_mm_s):
+            step = e.rate_mm_s * (t - self._t_prev)
+            d = min(max(x - self._rate_y, -step), step)
+            self._rate_y += d
+            x = self._rate_y
+        if e.backlash_mm > 0:
+            r = 0.5 * e.backlash_mm
+            if x - r > self._play_y:
+                self._play_y = x - r
+            elif x + r < self._play_y:
+                self._play_y = x + r
+            x = self._play_y
+        if e.pretension_gain != 1.0 or e.pretension_offset_mm != 0.0:
+            x = e.pretension_gain * (x - e.pretension_offset_mm)
+        w, z, _ = K.forward_step(self._p, self.w, self.z, x)
+        self.w, self.z = float(w), float(z)
+        w_true = self.w
+        if (e.aero_gain_per_kpa != 0.0 or e.aero_deg_per_kpa != 0.0) and airspeed is not None:
+            q = float(dynamic_pressure_kpa(airspeed))
+            w_true = w_true * (1.0 - e.aero_gain_per_kpa * q) - e.aero_deg_per_kpa * q
+        w_meas = w_true
+        if e.sensor_tau_s > 0:
+            if self._lag_y is None:
+                self._lag_y = w_true
+            a = math.exp(-(t - self._t_prev) / e.sensor_tau_s)
+            self._lag_y = a * self._lag_y + (1.0 - a) * w_true
+            w_meas = self._lag_y
+        if e.drift_deg_s != 0.0:
+            w_meas = w_meas + e.drift_deg_s * (t - self._t0)
+        self._t_prev = float(t)
+        return w_true, w_meas

@@ -1,0 +1,1 @@
+"""Everything simulated: mock autopilot, simulated wing, servo-board emulator, scenarios."""
