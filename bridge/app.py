@@ -1,0 +1,435 @@
+"""The running bridge: link -> mixer -> controller per wing -> servo, sensor back in, taps on the side.
+
+``Bridge(config)`` owns every part; ``tick()`` runs one control cycle:
+``link.poll()`` (non-blocking) and the parameter server, the mixer turns the FC's
+aileron PWM into a warp setpoint per wing, the sensor counts become degrees,
+each ``WingController`` gives a tendon travel, the servo calibration a pulse,
+and telemetry and the cycle log take their copies. ``run_bridge(config)`` runs
+ticks at the loop rate with absolute deadlines until stopped.
+
+Failsafes (each reported once by STATUSTEXT, cleared when over): no servo
+message for ``WB_FS_TMO`` s -> every wing to its neutral warp (bias); a wing's
+PWM invalid for that long -> that wing to neutral; sensor missing, outside its
+calibration table or frozen (same raw reading for ``sensor_frozen_s`` while the
+command moves) -> that wing on feed-forward only, integrator held; servo port
+lost -> keep running, reopen with back-off. No subsystem's exception stops the loop.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.config import WINGS, Config, WingConfig, backend_has_sensor
+from bridge.controller import MODES, WingController
+from bridge.cyclelog import CycleLog
+from bridge.errors import UserError
+from bridge.link import MSG_SERVO_OUTPUT_RAW, FcLink
+from bridge.loop_timer import LoopTimer, TimerStats
+from bridge.mavlink_env import mavlink
+from bridge.mixer import Mixer
+from bridge.param_server import ParamServer
+from bridge.params import ParamSpec, ParamStore
+from bridge.telemetry import MODE_CODES, Telemetry
+from hw import DeviceError, open_sensor, open_servo
+from hw.calibration import SensorCalibration, ServoCalibration
+from model.boucwen import BoucWenParams
+from model.modelfile import ModelFile
+
+log = logging.getLogger(__name__)
+
+SEV_CRITICAL, SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = (
+    mavlink.MAV_SEVERITY_CRITICAL, mavlink.MAV_SEVERITY_ERROR, mavlink.MAV_SEVERITY_WARNING,
+    mavlink.MAV_SEVERITY_NOTICE, mavlink.MAV_SEVERITY_INFO)
+SERVO_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
+SENSOR_MOVE_MM = 0.3  # the command must move this much for an unchanged reading to count as frozen
+ERROR_POLL_S = 1.0
+TAG = {"left": "L", "right": "R"}
+# the model parameters in MAVLink order: WB_BW_<suffix> -> BoucWenParams field (b as B1..B6)
+BW_FIELDS = ("A1", "A2", "A3", "AZ", "A", "N", "B1", "B2", "B3", "B4", "B5", "B6")
+
+
+def load_model(config: Config) -> BoucWenParams:
+    """The Bouc-Wen parameters named by ``[model] file`` (``"paper"`` -> the paper's)."""
+    if config.model_file is None:
+        return BoucWenParams.paper()
+    try:
+        doc = json.loads(config.model_file.read_text(encoding="utf-8"))
+        mf = ModelFile.from_dict(doc)
+    except OSError as e:
+        raise UserError(f"[model] file: cannot read {config.model_file}: {e.strerror or e}") from None
+    except ValueError as e:
+        raise UserError(f"[model] file: {config.model_file}: {e}") from None
+    if mf.effects.active():
+        log.warning("model effects %s are used by predict only; the feed-forward runs the Bouc-Wen model",
+                    ", ".join(mf.effects.active()))
+    return mf.params
+
+
+def _bw_values(p: BoucWenParams) -> list[float]:
+    return [p.a1, p.a2, p.a3, p.az, p.A, p.n, *p.b]
+
+
+def param_specs(config: Config, model: BoucWenParams, apply: Callable[[str, float], None]) -> list[ParamSpec]:
+    """The WB_* parameters; defaults come from the config (left wing) and the model file.
+
+    Once set (persisted value differs from the default) a parameter applies to both wings."""
+    c, w = config.left.control, config.left
+
+    def spec(name: str, default: float, lo: float, hi: float, doc: str, integer: bool = False) -> ParamSpec:
+        return ParamSpec(name, default, min(lo, default), max(hi, default), doc, integer, apply)
+
+    specs = [
+        spec("WB_MODE", MODES.index(c.mode), 0, 3, "control mode: 0 open, 1 pi, 2 ff, 3 ff+pi", True),
+        spec("WB_KP", c.kp, 0.0, 50.0, "PI proportional gain, mm of tendon per deg of warp error"),
+        spec("WB_KI", c.ki, 0.0, 50.0, "PI integral gain, mm per deg*s"),
+        spec("WB_I_MAX", c.i_max_mm, 0.0, 20.0, "integrator limit in ff+pi (trim authority), mm"),
+        spec("WB_MAXWARP", w.max_warp_deg, 0.5, 30.0, "warp at full aileron, deg"),
+        spec("WB_BIAS", w.bias_deg, 0.0, 30.0, "pre-warp held at neutral aileron (capped at WB_MAXWARP), deg"),
+        spec("WB_TLM_HZ", config.telemetry_rate_hz, 0.0, 50.0, "NAMED_VALUE_FLOAT rate per value, Hz; 0 off"),
+        spec("WB_FS_TMO", config.loop.failsafe_timeout_s, 0.05, 10.0,
+             "no servo message for this long -> neutral warp, s"),
+        spec("WB_SRV_HZ", config.link.servo_rate_hz, 1.0, 400.0, "servo output message rate asked of the FC, Hz"),
+    ]
+    bw_doc = {"A1": "a1, mm/deg^2", "A2": "a2, mm/deg", "A3": "a3, mm", "AZ": "az, mm per unit z",
+              "A": "A, z per deg", "N": "exponent n (>= 1)"}
+    for suffix, v in zip(BW_FIELDS, _bw_values(model), strict=True):
+        lo, hi = (1.0, 10.0) if suffix == "N" else (-1000.0, 1000.0)
+        doc = bw_doc[suffix] if suffix in bw_doc else f"beta{suffix[1:]}, z^(1-n) per deg"
+        specs.append(spec(f"WB_BW_{suffix}", v, lo, hi, f"Bouc-Wen model {doc}"))
+    return specs
+
+
+@dataclass
+class WingState:
+    """What the app tracks per wing between cycles."""
+
+    cfg: WingConfig
+    ctl: WingController
+    servo_cal: ServoCalibration
+    sensor_cal: SensorCalibration | None
+    setpoint: float = 0.0
+    pwm_time: float | None = None  # last time this wing's PWM was valid
+    raw_last: float | None = None  # sensor: last raw reading, when it changed, command then
+    raw_since: float = 0.0
+    u_at_change: float = 0.0
+    last: dict[str, float | None] = field(default_factory=dict)
+
+
+@dataclass
+class RunResult:
+    cycles: int
+    timer: TimerStats | None
+    failsafe_entries: int
+    log_path: str | None
+
+
+class Bridge:
+    """All parts of the running bridge; ``tick()`` is one control cycle."""
+
+    def __init__(self, config: Config, *, servo: Any = None, sensor: Any = None,
+                 clock: Callable[[], float] = time.monotonic, connect_timeout: float = 0.0) -> None:
+        self.config, self.clock = config, clock
+        self.model = load_model(config)
+        self.has_sensor = backend_has_sensor(config.sensor_backend) or sensor is not None
+        self.fs_timeout = config.loop.failsafe_timeout_s
+        self.dt = 1.0 / config.loop.rate_hz
+        self.link = FcLink(config.link.connection, servo_rate_hz=config.link.servo_rate_hz,
+                           rerequest_s=config.link.rerequest_s, source_system=config.link.source_system,
+                           clock=clock)
+        self.telemetry = Telemetry(self.link, config.telemetry_rate_hz, clock=clock)
+        self.mixer = Mixer(config.wings)
+        self.wings: dict[str, WingState] = {}
+        for name in WINGS:
+            wc = config.wings[name]
+            try:
+                scal = ServoCalibration(wc.servo.pulse_min_us, wc.servo.pulse_max_us, wc.servo.pulse_zero_us,
+                                        wc.servo.mm_per_us)
+                ecal = SensorCalibration(wc.sensor.counts, wc.sensor.deg) if wc.sensor_channel is not None else None
+            except ValueError as e:
+                raise UserError(f"[wing.{name}] calibration: {e}") from None
+            lo, hi = scal.mm_range
+            c = wc.control
+            ctl = WingController(self.model, mode=c.mode, kp=c.kp, ki=c.ki, i_max=c.i_max_mm,
+                                 u_min=lo if c.u_min_mm is None else c.u_min_mm,
+                                 u_max=hi if c.u_max_mm is None else c.u_max_mm, w_max=wc.max_warp_deg,
+                                 deadband=c.deadband_deg, w0=self.mixer.wings[name].neutral_deg)
+            self.wings[name] = WingState(wc, ctl, scal, ecal, setpoint=self.mixer.wings[name].neutral_deg)
+        self.store = ParamStore(param_specs(config, self.model, self._apply_param), config.params_file)
+        self.params = ParamServer(self.store, self.link, allowed_gcs=config.link.gcs_sysid_allow, clock=clock)
+        for name in self.store.names:  # values set earlier over MAVLink override the config
+            if self.store.get(name) != self.store.specs[name].default:
+                self._apply_param(name, self.store.get(name))
+        if connect_timeout > 0:
+            self.link.connect(connect_timeout)
+        self.servo, self.sensor = servo, sensor
+        self._servo_down_since: float | None = None
+        self._servo_retry_at = 0.0
+        self._servo_tries = 0
+        self._owns_devices = servo is None
+        if servo is None:
+            self._open_devices(initial=True)
+        self.log = CycleLog(config.loop.log) if config.loop.log is not None else None
+        self.start = clock()
+        self.failsafe = True  # until the first servo message
+        self.failsafe_entries = 0
+        self.cycles = 0
+        self._next_error_poll = 0.0
+        if self.store.load_report:
+            self.telemetry.status(SEV_WARNING, self.store.load_report)
+
+    # ------------------------------------------------------------------ devices
+
+    def _open_devices(self, initial: bool = False) -> None:
+        cfg = self.config
+        limits = {w.servo_channel: (w.servo.pulse_min_us, w.servo.pulse_max_us) for w in cfg.wings.values()}
+        try:
+            self.servo = open_servo(cfg.servo_backend, mavlink_sender=self.link, limits=limits,
+                                    **({"target_system": self.link.system_id or 1}
+                                       if cfg.servo_backend.startswith("fc") else {}))
+        except ValueError as e:
+            raise UserError(f"[servo] backend: {e}") from None
+        except DeviceError as e:
+            if not initial:
+                raise
+            self._servo_lost(e)
+        try:
+            self.sensor = open_sensor(cfg.sensor_backend, shared_servo=self.servo)
+        except ValueError as e:
+            raise UserError(f"[sensor] backend: {e}") from None
+        except DeviceError as e:
+            log.warning("sensor: %s; running feed-forward only until it returns", e)
+            self.sensor = None
+
+    def _servo_lost(self, e: Exception) -> None:
+        now = self.clock()
+        if self._servo_down_since is None:
+            self._servo_down_since = now
+            self._servo_tries = 0
+            self.telemetry.status(SEV_CRITICAL, f"WB servo lost: {e}"[:100], key="servo")
+        delay = SERVO_BACKOFF_S[min(self._servo_tries, len(SERVO_BACKOFF_S) - 1)]
+        self._servo_tries += 1
+        self._servo_retry_at = now + delay
+
+    def _servo_retry(self, now: float) -> None:
+        if now < self._servo_retry_at:
+            return
+        try:
+            reopen = getattr(self.servo, "reopen", None)
+            if self.servo is not None and reopen is not None:
+                reopen()
+            else:
+                self._open_devices()
+        except DeviceError as e:
+            self._servo_lost(e)
+            return
+        log.warning("servo output back after %.1f s", now - (self._servo_down_since or now))
+        self._servo_down_since = None
+        self.telemetry.clear("servo")
+        self.telemetry.status(SEV_NOTICE, "WB servo output back")
+
+    # ------------------------------------------------------------------ parameters
+
+    def _apply_param(self, name: str, v: float) -> None:
+        """Apply a WB_* value live to both wings (raises ValueError to refuse it)."""
+        ctls = [w.ctl for w in self.wings.values()]
+        if name == "WB_MODE":
+            for c in ctls:
+                c.set_mode(MODES[int(v)])
+            self.telemetry.status(SEV_INFO, f"WB mode {MODES[int(v)]}")
+        elif name in ("WB_KP", "WB_KI", "WB_I_MAX"):
+            key = {"WB_KP": "kp", "WB_KI": "ki", "WB_I_MAX": "i_max"}[name]
+            for c in ctls:
+                c.set_gains(**{key: v})
+        elif name in ("WB_MAXWARP", "WB_BIAS"):
+            self.mixer.retune(**{"WB_MAXWARP": {"max_warp_deg": v}, "WB_BIAS": {"bias_deg": v}}[name])
+            for wname, w in self.wings.items():
+                w.ctl.set_model(self.model, w_max=self.mixer.wings[wname].max_warp_deg)
+        elif name == "WB_TLM_HZ":
+            self.telemetry.rate_hz = v
+            self.telemetry.period = 1.0 / v if v > 0 else math.inf
+        elif name == "WB_FS_TMO":
+            self.fs_timeout = v
+        elif name == "WB_SRV_HZ":
+            self.link.servo_rate_hz = v
+            if self.link.ready:
+                self.link.request_message_interval(MSG_SERVO_OUTPUT_RAW, v)
+        elif name.startswith("WB_BW_"):
+            vals = dict(zip(BW_FIELDS, _bw_values(self.model), strict=True))
+            vals[name[len("WB_BW_"):]] = v
+            p = [vals[k] for k in BW_FIELDS]
+            model = BoucWenParams(a1=p[0], a2=p[1], a3=p[2], az=p[3], A=p[4], n=p[5], b=tuple(p[6:]))
+            for c in ctls:
+                c.set_model(model)
+            self.model = model
+
+    # ------------------------------------------------------------------ the cycle
+
+    def _measure(self, name: str, w: WingState, now: float) -> float | None:
+        """The wing's warp (deg) or None, with missing / out-of-range / frozen reported once."""
+        problem, raw = None, None
+        if w.sensor_cal is None or w.cfg.sensor_channel is None or not self.has_sensor:
+            return None
+        if self.sensor is None:
+            problem = "no sensor"
+        else:
+            try:
+                raw = self.sensor.read_counts(w.cfg.sensor_channel)
+            except DeviceError as e:
+                problem = f"read failed ({e})"
+        if problem is None:
+            lo, hi = min(w.sensor_cal.counts), max(w.sensor_cal.counts)
+            if raw is None or not math.isfinite(raw):
+                problem = "no reading"
+            elif not lo <= raw <= hi:
+                problem = f"reading {raw:g} out of range"
+            elif raw != w.raw_last:
+                w.raw_last, w.raw_since, w.u_at_change = raw, now, w.ctl.last_u
+            elif now - w.raw_since > self.config.loop.sensor_frozen_s and \
+                    abs((w.ctl.last_u) - w.u_at_change) > SENSOR_MOVE_MM:
+                problem = "frozen"
+        key = f"sensor-{name}"
+        if problem is not None:
+            self.telemetry.status(SEV_WARNING, f"WB {name} sensor {problem}: ff only", key=key)
+            return None
+        if self.telemetry.active(key):
+            self.telemetry.clear(key)
+            self.telemetry.status(SEV_NOTICE, f"WB {name} sensor back")
+        return w.sensor_cal.deg_for_counts(raw)
+
+    def _setpoints(self, now: float) -> dict[str, float]:
+        link = self.link
+        silent = link.servo_time is None or now - link.servo_time > self.fs_timeout
+        if link.servo_time is None:  # start-up: nothing heard yet, neutral without an alarm
+            self.failsafe = True
+            return self.mixer.neutral()
+        if silent != self.failsafe:
+            self.failsafe = silent
+            if silent:
+                self.failsafe_entries += 1
+                self.telemetry.status(SEV_CRITICAL, "WB failsafe: no servo outputs, wings neutral", key="fs")
+            else:
+                self.telemetry.clear("fs")
+                self.telemetry.status(SEV_NOTICE, "WB servo outputs back, following FC")
+        neutral = self.mixer.neutral()
+        if silent:
+            return neutral
+        out = {}
+        for name, sp in self.mixer.setpoints(link.servo_pwm).items():
+            w = self.wings[name]
+            if sp is not None:
+                w.pwm_time, w.setpoint = now, sp
+            elif w.pwm_time is None or now - w.pwm_time > self.fs_timeout:
+                w.setpoint = neutral[name]  # invalid for too long: neutral; briefly: hold the last
+            out[name] = w.setpoint
+        return out
+
+    def tick(self) -> None:
+        """One control cycle; catches and reports every subsystem's failure."""
+        now = self.clock()
+        self.cycles += 1
+        try:
+            self.params.poll(self.link.poll())
+        except Exception:  # noqa: BLE001 - the link or a GCS request must not stop the loop
+            log.exception("link/parameter handling failed")
+        try:
+            setpoints = self._setpoints(now)
+        except Exception:  # noqa: BLE001
+            log.exception("mixer failed; wings neutral")
+            setpoints = self.mixer.neutral()
+        if self._servo_down_since is not None:
+            self._servo_retry(now)
+        rows: dict[str, dict[str, float | None]] = {}
+        modes = []
+        for name, w in self.wings.items():
+            row: dict[str, float | None] = {"setpoint": setpoints[name]}
+            try:
+                measured = self._measure(name, w, now)
+                cmd = w.ctl.step(setpoints[name], measured, self.dt)
+                pulse = w.servo_cal.pulse_for_mm(cmd.u_cmd)
+                row.update(ff=cmd.ff, pi=cmd.pi, u=cmd.u_cmd, warp=measured, pulse=pulse)
+                modes.append(cmd.mode)
+                if self._servo_down_since is None and self.servo is not None:
+                    self.servo.set_pulse(w.cfg.servo_channel, pulse)
+            except DeviceError as e:
+                self._servo_lost(e)
+            except Exception:  # noqa: BLE001
+                log.exception("%s wing cycle failed", name)
+            rows[name] = row
+            w.last = row
+        mode = "failsafe" if self.failsafe else ("/".join(dict.fromkeys(modes)) or "none")
+        self._taps(now, mode, rows)
+
+    def _taps(self, now: float, mode: str, rows: dict[str, dict[str, float | None]]) -> None:
+        try:
+            t = self.telemetry
+            for name, r in rows.items():
+                for key, field_ in (("sp", "setpoint"), ("warp", "warp"), ("cmd", "u"), ("ff", "ff"),
+                                    ("pi", "pi")):
+                    v = r.get(field_)
+                    if v is not None and math.isfinite(v):
+                        t.named_float(f"{TAG[name]}_{key}", v)
+            t.named_float("WB_mode", MODE_CODES.get(mode, MODE_CODES.get(mode.split("/")[0], -1.0)))
+            if self.link.airspeed is not None:
+                t.named_float("WB_aspd", self.link.airspeed)
+            if self.link.servo_time is not None:
+                t.named_float("WB_lat", 1000.0 * (now - self.link.servo_time))
+            t.poll()
+            if now >= self._next_error_poll and self._servo_down_since is None and self.servo is not None:
+                self._next_error_poll = now + ERROR_POLL_S
+                bits = self.servo.poll_errors()
+                if bits:
+                    names = ", ".join(self.servo.error_names(bits))
+                    t.status(SEV_ERROR, f"WB servo board error: {names}"[:100])
+        except DeviceError as e:
+            self._servo_lost(e)
+        except Exception:  # noqa: BLE001
+            log.exception("telemetry failed")
+        if self.log is not None:
+            try:
+                self.log.write(now - self.start, mode, self.link.airspeed, rows)
+            except Exception:  # noqa: BLE001
+                log.exception("cycle log write failed; logging stopped")
+                self.log = None
+
+    def close(self) -> None:
+        """Close the log, the parameter store, the devices we opened and the link."""
+        for what, fn in (("log", self.log.close if self.log else None), ("params", self.store.close),
+                         ("servo", self.servo.close if self._owns_devices and self.servo else None),
+                         ("sensor", self.sensor.close if self._owns_devices and self.sensor else None),
+                         ("link", self.link.close)):
+            if fn is None:
+                continue
+            try:
+                fn()
+            except Exception:  # noqa: BLE001
+                log.exception("closing %s failed", what)
+
+
+def run_bridge(config: Config, stop_event: threading.Event | None = None, duration: float | None = None,
+               *, servo: Any = None, sensor: Any = None) -> RunResult:
+    """Run the bridge at the loop rate until ``stop_event`` is set or ``duration`` s have passed.
+
+    ``servo``/``sensor`` replace the configured backends (tests, SITL)."""
+    bridge = Bridge(config, servo=servo, sensor=sensor)
+    timer = LoopTimer(config.loop.rate_hz)
+    log.info("bridge running at %g Hz", config.loop.rate_hz)
+    try:
+        while not (stop_event is not None and stop_event.is_set()):
+            if duration is not None and timer.elapsed() >= duration:
+                break
+            bridge.tick()
+            timer.wait()
+    finally:
+        bridge.close()
+    stats = timer.stats()
+    if stats.overruns:
+        log.warning("loop overran %d tick(s); worst lateness %.1f ms", stats.overruns, 1000 * stats.late_max_s)
+    return RunResult(bridge.cycles, stats, bridge.failsafe_entries,
+                     str(bridge.log.path) if bridge.log is not None else None)

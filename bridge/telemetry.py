@@ -1,0 +1,137 @@
+"""Telemetry tap of the running bridge: NAMED_VALUE_FLOAT values and STATUSTEXT messages.
+
+``Telemetry(link, rate_hz)`` sends each named value at most ``rate_hz`` times a
+second (the latest value wins; call ``poll()`` each cycle to flush values held
+back), and STATUSTEXT without storms: a keyed status goes out once until
+``clear(key)`` (and a key that flaps is re-sent at most every ``key_holdoff_s``),
+an unkeyed one is rate limited (burst of 5, then one a second).
+
+Names sent (at most 10 characters; shown by MAVProxy, Mission Planner's Quick tab
+and QGroundControl's MAVLink Inspector, logged by ArduPilot as NVAL):
+
+| name | unit | meaning |
+|---|---|---|
+| ``L_sp`` / ``R_sp`` | deg | warp setpoint of the left / right wing (from the FC's aileron outputs) |
+| ``L_warp`` / ``R_warp`` | deg | measured warp (flex sensor); not sent without a sensor |
+| ``L_cmd`` / ``R_cmd`` | mm | tendon command sent to the servo (feed-forward + PI) |
+| ``L_ff`` / ``R_ff`` | mm | feed-forward part of the command (inverse Bouc-Wen on the setpoint) |
+| ``L_pi`` / ``R_pi`` | mm | PI trim part of the command |
+| ``WB_mode`` | - | control mode: 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe hold |
+| ``WB_aspd`` | m/s | airspeed the bridge uses |
+| ``WB_lat`` | ms | age of the latest servo output message at use |
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+from bridge.link import NAMED_FLOAT_MAX
+
+log = logging.getLogger(__name__)
+
+NAMES = {
+    "L_sp": "left warp setpoint, deg",
+    "R_sp": "right warp setpoint, deg",
+    "L_warp": "left measured warp, deg",
+    "R_warp": "right measured warp, deg",
+    "L_cmd": "left tendon command, mm",
+    "R_cmd": "right tendon command, mm",
+    "L_ff": "left feed-forward, mm",
+    "R_ff": "right feed-forward, mm",
+    "L_pi": "left PI trim, mm",
+    "R_pi": "right PI trim, mm",
+    "WB_mode": "mode: 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe",
+    "WB_aspd": "airspeed used, m/s",
+    "WB_lat": "servo message age, ms",
+}
+MODE_CODES = {"open": 0.0, "pi": 1.0, "ff": 2.0, "ff+pi": 3.0, "failsafe": -1.0}
+
+_STATUS_BURST = 5.0
+_STATUS_PER_S = 1.0
+
+
+class Telemetry:
+    """Rate-limited NAMED_VALUE_FLOAT and storm-free STATUSTEXT over an ``FcLink``."""
+
+    def __init__(
+        self,
+        link: Any,
+        rate_hz: float = 10.0,
+        *,
+        key_holdoff_s: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.link = link
+        self.rate_hz = float(rate_hz)
+        self.period = 1.0 / rate_hz if rate_hz > 0 else math.inf
+        self.key_holdoff_s = key_holdoff_s
+        self.clock = clock
+        self._last_sent: dict[str, float] = {}
+        self._pending: dict[str, float] = {}
+        self._active_keys: set[str] = set()
+        self._key_sent: dict[str, float] = {}
+        self._tokens = _STATUS_BURST
+        self._token_time = clock()
+        self.dropped_status = 0
+
+    # ------------------------------------------------------------------ named values
+
+    def named_float(self, name: str, value: float) -> None:
+        """Queue ``value`` under ``name`` (<= 10 chars); sent now if the name is due, else later."""
+        if not name or len(name) > NAMED_FLOAT_MAX or not name.isascii():
+            raise ValueError(f"telemetry name {name!r} must be 1..{NAMED_FLOAT_MAX} ASCII characters")
+        if self.rate_hz <= 0:
+            return
+        self._pending[name] = float(value)
+        self._flush(name, self.clock())
+
+    def poll(self) -> None:
+        """Send the values held back whose name is due again."""
+        now = self.clock()
+        for name in list(self._pending):
+            self._flush(name, now)
+
+    def _flush(self, name: str, now: float) -> None:
+        last = self._last_sent.get(name)
+        if last is not None and now - last < self.period:
+            return
+        if self.link.send_named_float(name, self._pending[name]):
+            self._last_sent[name] = now
+            del self._pending[name]
+
+    # ------------------------------------------------------------------ status texts
+
+    def status(self, severity: int, text: str, key: str | None = None) -> bool:
+        """Send STATUSTEXT; with ``key`` only once until ``clear(key)``. True if sent."""
+        now = self.clock()
+        if key is not None:
+            if key in self._active_keys:
+                return False
+            self._active_keys.add(key)
+            last = self._key_sent.get(key)
+            if last is not None and now - last < self.key_holdoff_s:
+                log.debug("status %r flapping; not re-sent", key)
+                return False
+            self._key_sent[key] = now
+            log.info("status [%s]: %s", key, text)
+            return bool(self.link.send_statustext(severity, text))
+        self._tokens = min(_STATUS_BURST, self._tokens + (now - self._token_time) * _STATUS_PER_S)
+        self._token_time = now
+        if self._tokens < 1.0:
+            self.dropped_status += 1
+            log.info("status dropped (rate limit): %s", text)
+            return False
+        self._tokens -= 1.0
+        log.info("status: %s", text)
+        return bool(self.link.send_statustext(severity, text))
+
+    def clear(self, key: str) -> None:
+        """The condition behind ``key`` is over: the next ``status(..., key)`` is sent again."""
+        self._active_keys.discard(key)
+
+    def active(self, key: str) -> bool:
+        return key in self._active_keys

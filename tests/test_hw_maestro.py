@@ -1,0 +1,297 @@
+"""The Maestro driver against the emulated board on a real pty; backend selection; back-off."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import serial
+
+import hw
+from hw.base import Backoff, NullSensor, parse_serial_spec
+from hw.errors import DeviceError
+from hw.loop import LoopBackend
+from hw.maestro import NO_REPLY, Maestro, error_names
+from sitl.maestro_emu import PROTOCOL_ERROR, MaestroEmulator
+
+
+class Board:
+    """An emulated board recording the targets it receives; analog inputs from a dict."""
+
+    def __init__(self, **kw):
+        self.targets: list[tuple[int, int]] = []
+        self.analog: dict[int, int] = {}
+        self.emu = MaestroEmulator(
+            on_target=lambda ch, q: self.targets.append((ch, q)), read_analog=self.analog.get, **kw
+        )
+
+
+@pytest.fixture
+def board():
+    b = Board()
+    b.emu.start()
+    yield b
+    b.emu.stop()
+
+
+@pytest.fixture
+def maestro(board):
+    m = Maestro(board.emu.device_path, limits={0: (1100.0, 1900.0)})
+    yield m
+    m.close()
+
+
+def test_targets_arrive_in_exact_quarter_microseconds(board, maestro):
+    maestro.set_pulse(0, 1500.25)
+    maestro.set_pulse(1, 1234.5)
+    maestro.set_pulse(2, 1800.0)
+    # the board answers in order, so once it answers, every target before has arrived
+    assert maestro.read_pulse(2) == 1800.0
+    assert board.targets == [(0, 6001), (1, 4938), (2, 7200)]
+    assert maestro.read_pulse(0) == 1500.25
+
+
+def test_set_target_bytes_follow_the_compact_protocol(board, maestro):
+    maestro.set_pulse(3, 1500.25)  # 6001 = 0x1771: low 7 bits 0x71, high 7 bits 0x2E
+    maestro.read_counts(3)
+    assert bytes(board.emu.received[:4]) == bytes([0x84, 3, 0x71, 0x2E])
+    assert bytes(board.emu.received[4:6]) == bytes([0x90, 3])
+
+
+def test_pulses_are_rounded_to_quarter_microseconds(board, maestro):
+    maestro.set_pulse(1, 1500.1)
+    maestro.set_pulse(1, 1500.2)
+    maestro.read_counts(1)
+    assert board.targets == [(1, 6000), (1, 6001)]
+
+
+def test_analog_inputs_come_back(board, maestro):
+    board.analog[5] = 700
+    board.analog[6] = 0
+    assert maestro.read_counts(5) == 700.0
+    assert maestro.read_counts(6) == 0.0
+    board.analog[5] = 1023
+    assert maestro.read_counts(5) == 1023.0
+
+
+def test_error_bits_are_reported_named_and_cleared(board, maestro):
+    board.emu.errors = 0x0011
+    bits = maestro.poll_errors()
+    assert bits == 0x0011
+    assert maestro.error_names(bits) == ["serial signal error", "serial protocol error"]
+    assert maestro.poll_errors() == 0
+
+
+def test_error_names_cover_every_documented_bit():
+    names = error_names(0x01FF)
+    assert len(names) == 9 and names[-1] == "script program counter error"
+    assert error_names(1 << 12) == ["bit 12"]
+    assert error_names(NO_REPLY) == ["no reply"]
+
+
+def test_pulses_are_clamped_to_the_channel_limits(board, maestro):
+    maestro.set_pulse(0, 2500.0)
+    maestro.set_pulse(0, 100.0)
+    maestro.set_pulse(4, 2600.0)  # channel without own limits: default 1000..2000
+    maestro.read_counts(4)
+    assert board.targets == [(0, 1900 * 4), (0, 1100 * 4), (4, 2000 * 4)]
+
+
+def test_non_finite_pulse_is_refused_and_nothing_written(board, maestro):
+    with pytest.raises(ValueError):
+        maestro.set_pulse(0, math.nan)
+    with pytest.raises(ValueError):
+        maestro.set_pulse(24, 1500.0)
+    maestro.read_counts(0)
+    assert board.targets == []
+
+
+def test_bad_limits_are_refused(board):
+    with pytest.raises(ValueError, match="channel 2"):
+        Maestro(board.emu.device_path, limits={2: (1900.0, 1100.0)})
+
+
+def test_silent_board_gives_none_not_a_hang(board, maestro):
+    board.analog[5] = 512
+    board.emu.mute = True
+    assert maestro.read_counts(5) is None
+    assert maestro.poll_errors() == NO_REPLY
+    board.emu.mute = False
+    assert maestro.read_counts(5) == 512.0
+
+
+def test_garbage_on_the_line_is_flagged_and_the_next_command_works(board, maestro):
+    board.analog[2] = 333
+    maestro._write(bytes([0x05, 0x84, 0x01, 0xFF]))  # stray data byte, interrupted command
+    assert maestro.read_counts(2) == 333.0
+    assert maestro.poll_errors() & PROTOCOL_ERROR
+
+
+def test_pololu_protocol_with_device_number(board):
+    board.analog[1] = 901
+    with Maestro(board.emu.device_path, device_number=12) as m:
+        m.set_pulse(3, 1600.0)
+        assert m.read_counts(1) == 901.0
+        assert board.targets == [(3, 6400)]
+    with Maestro(board.emu.device_path, device_number=5, timeout=0.01) as other:
+        other.set_pulse(3, 1200.0)
+        assert other.read_counts(1) is None  # addressed to another board: ignored
+    assert board.targets == [(3, 6400)]
+
+
+def test_port_lost_raises_device_error_then_reopen_works(board, maestro):
+    board.analog[5] = 640
+    board.emu.close_port()
+    with pytest.raises(DeviceError):
+        maestro.set_pulse(1, 1500.0)
+    with pytest.raises(DeviceError):
+        maestro.read_counts(5)
+    assert not maestro.is_open
+    with pytest.raises(DeviceError):
+        maestro.reopen()  # the old pty is gone
+    new_path = board.emu.reopen_port()
+    maestro.reopen(new_path)
+    maestro.set_pulse(1, 1500.0)
+    assert maestro.read_counts(5) == 640.0
+    assert board.targets[-1] == (1, 6000)
+
+
+def test_replug_behind_a_stable_link_with_backoff(tmp_path):
+    clock = [0.0]
+    b = Board(link=tmp_path / "maestro")
+    b.analog[0] = 100
+    path = b.emu.start()
+    try:
+        m = Maestro(path)
+        backoff = Backoff(initial_s=0.1, max_s=0.4, clock=lambda: clock[0])
+        b.emu.close_port()
+        with pytest.raises(DeviceError):
+            m.read_counts(0)
+        waits = []
+        for _ in range(4):  # unplugged: each retry fails and the wait grows to max_s
+            assert backoff.due()
+            with pytest.raises(DeviceError):
+                m.reopen()
+            waits.append(backoff.failed())
+            assert not backoff.due()
+            clock[0] += waits[-1]
+        assert waits == [0.1, 0.2, 0.4, 0.4]
+        b.emu.reopen_port()
+        assert backoff.due()
+        m.reopen()  # same path: the link now points at the new pty
+        backoff.succeeded()
+        assert m.read_counts(0) == 100.0
+        assert backoff.delay_s == 0.1
+        m.close()
+    finally:
+        b.emu.stop()
+    assert not (tmp_path / "maestro").exists()
+
+
+def test_spy_url_dumps_the_traffic(board, tmp_path):
+    board.analog[3] = 321
+    log = tmp_path / "spy.txt"
+    servo = hw.open_servo(f"maestro:spy://{board.emu.device_path}?file={log},115200")
+    servo.set_pulse(0, 1500.0)
+    assert servo.read_counts(3) == 321.0
+    servo.close()
+    dump = log.read_text()
+    assert "84 00 70 2E" in dump and "90 03" in dump and "41 01" in dump
+
+
+def test_one_maestro_serves_servo_and_sensor(board):
+    board.analog[6] = 250
+    servo = hw.open_servo(f"maestro:{board.emu.device_path}", limits={0: (1200.0, 1800.0)})
+    assert isinstance(servo, hw.ServoOutput)
+    assert hw.open_sensor("maestro:", shared_servo=servo) is servo
+    assert hw.open_sensor(f"maestro:{board.emu.device_path}", shared_servo=servo) is servo
+    sensor = hw.open_sensor("maestro:", shared_servo=servo)
+    assert isinstance(sensor, hw.WarpSensor)
+    assert sensor.read_counts(6) == 250.0
+    servo.set_pulse(0, 1900.0)
+    sensor.read_counts(6)
+    assert board.targets == [(0, 1800 * 4)]
+    servo.close()
+
+
+def test_missing_device_is_a_device_error(tmp_path):
+    with pytest.raises(DeviceError, match="cannot open"):
+        hw.open_servo(f"maestro:{tmp_path / 'ttyACM9'}")
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("/dev/ttyACM0", ("/dev/ttyACM0", 115200)),
+        ("/dev/ttyAMA0,57600", ("/dev/ttyAMA0", 57600)),
+        ("spy:///dev/ttyACM0?file=x.txt, 9600", ("spy:///dev/ttyACM0?file=x.txt", 9600)),
+    ],
+)
+def test_serial_spec_parsing(text, expected):
+    assert parse_serial_spec(text, 115200) == expected
+
+
+@pytest.mark.parametrize("text", ["", "/dev/ttyACM0,fast", ",9600", "/dev/ttyACM0,0"])
+def test_bad_serial_specs_are_refused(text):
+    with pytest.raises(ValueError):
+        parse_serial_spec(text, 115200)
+
+
+@pytest.mark.parametrize("spec", ["nonsense", "can:/dev/can0", "none"])
+def test_unknown_servo_specs_are_refused(spec):
+    with pytest.raises(ValueError):
+        hw.open_servo(spec)
+
+
+def test_sensor_specs_none_and_errors():
+    sensor = hw.open_sensor("none")
+    assert isinstance(sensor, NullSensor) and sensor.read_counts(0) is None
+    with pytest.raises(ValueError, match="Maestro"):
+        hw.open_sensor("maestro:", shared_servo=None)
+    with pytest.raises(ValueError):
+        hw.open_sensor("wifi:thing")
+
+
+def test_loop_backend_records_pulses_and_serves_counts():
+    clock = [5.0]
+    loop = hw.open_servo("loop:", clock=lambda: clock[0])
+    assert isinstance(loop, LoopBackend)
+    assert hw.open_sensor("loop:", shared_servo=loop) is loop
+    loop.set_pulse(2, 1525.5)
+    clock[0] = 6.0
+    loop.set_pulse(2, 1530.0)
+    assert loop.pulses[2] == (1530.0, 6.0)
+    assert loop.history == [(5.0, 2, 1525.5), (6.0, 2, 1530.0)]
+    assert loop.read_counts(0) is None
+    loop.counts[0] = 400
+    assert loop.read_counts(0) == 400.0
+    loop.counts = lambda ch: 10.0 * ch
+    assert loop.read_counts(3) == 30.0
+    with pytest.raises(ValueError):
+        loop.set_pulse(2, math.inf)
+
+
+def test_loop_backend_simulates_loss_and_errors():
+    loop = LoopBackend()
+    loop.errors = 0b101
+    assert loop.error_names(loop.poll_errors()) == ["bit 0", "bit 2"]
+    assert loop.poll_errors() == 0
+    loop.broken = True
+    with pytest.raises(DeviceError):
+        loop.set_pulse(0, 1500.0)
+    with pytest.raises(DeviceError):
+        loop.reopen()
+    loop.broken = False
+    loop.reopen()
+    loop.set_pulse(0, 1500.0)
+    assert loop.pulse(0) == 1500.0 and loop.reopen_count == 2
+
+
+def test_backoff_rejects_bad_settings():
+    with pytest.raises(ValueError):
+        Backoff(initial_s=1.0, max_s=0.5)
+
+
+def test_pyserial_exceptions_are_oserrors():
+    # fc_outputs relies on this to map a lost serial MAVLink link to DeviceError
+    assert issubclass(serial.SerialException, OSError)

@@ -1,0 +1,333 @@
+"""ParamStore validation and persistence, and ParamServer driven by a pymavlink ground station."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge.link import FcLink
+from bridge.mavlink_env import mavlink, mavutil
+from bridge.param_server import ParamServer, param_name
+from bridge.params import ParamError, ParamSpec, ParamStore
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def specs(applied: list | None = None) -> list[ParamSpec]:
+    def on_kp(name: str, value: float) -> None:
+        if applied is not None:
+            applied.append((name, value))
+
+    def on_lim(name: str, value: float) -> None:
+        if value == 13.0:
+            raise RuntimeError("servo board refused the limit")
+
+    return [
+        ParamSpec("WB_KP", 7.0, 0.0, 50.0, "PI proportional gain, mm/deg", on_set=on_kp),
+        ParamSpec("WB_KI", 1.0, 0.0, 10.0, "PI integral gain, mm/(deg s)"),
+        ParamSpec("WB_MODE", 3, 0, 3, "0 open, 1 pi, 2 ff, 3 ff+pi", integer=True),
+        ParamSpec("WB_DEADBAND", 0.08, 0.0, 0.1, "PI dead band, deg"),
+        ParamSpec("WB_LIM_TENDON_MM", 15.0, 0.0, 30.0, "tendon travel limit, mm", on_set=on_lim),
+    ]
+
+
+# ---------------------------------------------------------------------- store
+
+
+def test_spec_rejects_bad_definitions():
+    with pytest.raises(ValueError):
+        ParamSpec("WB_THIS_NAME_IS_TOO_LONG", 0, 0, 1, "x")
+    with pytest.raises(ValueError):
+        ParamSpec("WB_X", 5, 0, 1, "default outside range")
+    with pytest.raises(ValueError):
+        ParamSpec("WB_X", 0.5, 0, 1, "integer with fraction", integer=True)
+
+
+def test_set_validates_and_applies_live():
+    applied: list = []
+    store = ParamStore(specs(applied), None)
+    seen: list = []
+    store.add_listener(lambda n, v: seen.append((n, v)))
+    assert store.set("WB_KP", 9.5) == 9.5 and store.get("WB_KP") == 9.5
+    assert applied == [("WB_KP", 9.5)] and seen == [("WB_KP", 9.5)]
+    assert store.set("WB_MODE", 2.0) == 2.0
+    refusals = {
+        ("WB_NOPE", 1.0): "unknown",
+        ("WB_KP", float("nan")): "finite",
+        ("WB_KP", float("inf")): "finite",
+        ("WB_KP", 51.0): "above max",
+        ("WB_KP", -0.5): "below min",
+        ("WB_KP", "7"): "not a number",
+        ("WB_KP", True): "not a number",
+        ("WB_MODE", 2.5): "whole number",
+        ("WB_LIM_TENDON_MM", 13.0): "not applied",
+    }
+    for (name, value), why in refusals.items():
+        with pytest.raises(ParamError, match=why):
+            store.set(name, value)
+    assert store.get("WB_KP") == 9.5 and store.get("WB_MODE") == 2.0 and store.get("WB_LIM_TENDON_MM") == 15.0
+    assert len(seen) == 2
+
+
+def test_float32_value_at_a_bound_is_accepted():
+    store = ParamStore(specs(), None)
+    f32 = float(np.float32(0.1))  # what arrives over MAVLink for 0.1
+    assert f32 > 0.1
+    assert store.set("WB_DEADBAND", f32) == 0.1
+
+
+def test_values_persist_across_instances(tmp_path):
+    path = tmp_path / "params.json"
+    store = ParamStore(specs(), path)
+    store.set("WB_KP", 12.0)
+    store.set("WB_MODE", 1)
+    store.close()
+    doc = json.loads(path.read_text())
+    assert doc["format"] == "warpbridge-params/1"
+    assert doc["params"] == {"WB_KP": 12.0, "WB_MODE": 1.0}  # only what differs from the default
+    again = ParamStore(specs(), path)
+    assert again.load_report is None
+    assert again.get("WB_KP") == 12.0 and again.get("WB_MODE") == 1.0 and again.get("WB_KI") == 1.0
+    again.close()
+
+
+def test_corrupt_file_falls_back_to_defaults_and_is_kept_aside(tmp_path):
+    path = tmp_path / "params.json"
+    path.write_text('{"format": "warpbridge-params/1", "params": {"WB_KP": 1')  # truncated
+    store = ParamStore(specs(), path)
+    assert store.get("WB_KP") == 7.0
+    assert store.load_report is not None and "corrupt" in store.load_report
+    aside = list(tmp_path.glob("params.json.corrupt-*"))
+    assert len(aside) == 1 and aside[0].read_text().endswith('"WB_KP": 1')
+    assert aside[0].name in store.load_report
+    assert not path.exists()
+    store.set("WB_KP", 8.0)
+    store.close()
+    assert ParamStore(specs(), path, background=False).get("WB_KP") == 8.0
+
+
+def test_invalid_value_in_file_keeps_default(tmp_path):
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"format": "warpbridge-params/1", "params": {"WB_KP": 99.0, "WB_KI": 2.0, "OLD": 1}}))
+    store = ParamStore(specs(), path, background=False)
+    assert store.get("WB_KP") == 7.0 and store.get("WB_KI") == 2.0
+    assert "WB_KP" in store.load_report
+
+
+WRITER = textwrap.dedent(
+    """
+    import sys
+    from bridge.params import ParamSpec, ParamStore
+    specs = [ParamSpec("A", 0, 0, 1000, "a", integer=True), ParamSpec("B", 0, 0, 1000, "b", integer=True)]
+    store = ParamStore(specs, sys.argv[1], background=False)
+    print("ready", flush=True)
+    k = 0
+    while True:
+        k = k % 999 + 1
+        store.set("A", k)
+        store.set("B", k)
+    """
+)
+
+
+def test_kill_during_writes_never_corrupts(tmp_path):
+    path = tmp_path / "params.json"
+    rng = random.Random(1)
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    kills = 0
+    for _ in range(8):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, env=env, cwd=str(tmp_path)
+        )
+        assert proc.stdout.readline().strip() == b"ready"
+        time.sleep(rng.uniform(0.01, 0.12))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        kills += 1
+        doc = json.loads(path.read_text())  # must always parse
+        params = doc["params"]
+        a, b = params.get("A", 0.0), params.get("B", 0.0)
+        # B is set right after A: a snapshot has B == A or B one step behind
+        assert a == b or b == (a - 2) % 999 + 1, (a, b)
+        store = ParamStore(
+            [ParamSpec("A", 0, 0, 1000, "a", integer=True), ParamSpec("B", 0, 0, 1000, "b", integer=True)],
+            path,
+            background=False,
+        )
+        assert store.load_report is None
+        assert not list(tmp_path.glob(".params.json.tmp-*"))  # stale temp files cleaned up
+    assert kills == 8
+
+
+# ---------------------------------------------------------------------- server over MAVLink
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Bridge:
+    """FcLink + ParamServer run by a thread, as the bridge's loop does."""
+
+    def __init__(self, store: ParamStore, allowed_gcs=None) -> None:
+        self.port = free_udp_port()
+        self.link = FcLink(f"udpin:127.0.0.1:{self.port}", source_system=1)
+        assert self.link.open()
+        self.server = ParamServer(store, self.link, allowed_gcs=allowed_gcs)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.server.poll(self.link.poll())
+            time.sleep(0.002)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self.link.close()
+
+
+@pytest.fixture
+def setup(tmp_path):
+    store = ParamStore(specs(), tmp_path / "p.json")
+    bridge = Bridge(store)
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{bridge.port}", source_system=255, source_component=190)
+    gcs.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    yield store, bridge, gcs
+    gcs.close()
+    bridge.close()
+    store.close()
+
+
+def recv(gcs, types, timeout: float = 3.0, cond=None):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        m = gcs.recv_match(type=types, blocking=True, timeout=0.05)
+        if m is not None and (cond is None or cond(m)):
+            return m
+    return None
+
+
+def test_list_sends_every_parameter_with_count_and_index(setup):
+    store, _, gcs = setup
+    gcs.mav.param_request_list_send(1, 191)
+    got = {}
+    deadline = time.monotonic() + 5
+    while len(got) < len(store) and time.monotonic() < deadline:
+        m = recv(gcs, "PARAM_VALUE", timeout=0.5)
+        if m is not None:
+            assert m.param_index not in got
+            got[m.param_index] = m
+    assert sorted(got) == list(range(len(store)))
+    for i, m in got.items():
+        assert m.param_count == len(store)
+        assert m.param_type == mavlink.MAV_PARAM_TYPE_REAL32
+        assert (m.get_srcSystem(), m.get_srcComponent()) == (1, 191)
+        assert m.param_id == store.names[i]
+        assert m.param_value == pytest.approx(store.get(store.names[i]))
+    assert "WB_LIM_TENDON_MM" in {m.param_id for m in got.values()}  # 16 chars, no NUL on the wire
+
+
+def test_read_by_name_and_by_index(setup):
+    store, _, gcs = setup
+    gcs.mav.param_request_read_send(1, 191, b"WB_KI", -1)
+    m = recv(gcs, "PARAM_VALUE")
+    assert m.param_id == "WB_KI" and m.param_value == pytest.approx(1.0) and m.param_index == 1
+    gcs.mav.param_request_read_send(1, 191, b"ignored", 2)  # index wins over the name
+    m = recv(gcs, "PARAM_VALUE")
+    assert m.param_id == "WB_MODE" and m.param_index == 2
+    gcs.mav.param_request_read_send(1, 191, b"WB_LIM_TENDON_MM", -1)  # 16 chars, no terminator
+    m = recv(gcs, "PARAM_VALUE")
+    assert m.param_id == "WB_LIM_TENDON_MM" and m.param_value == pytest.approx(15.0)
+
+
+def test_set_is_applied_echoed_and_persisted(setup, tmp_path):
+    store, _, gcs = setup
+    gcs.mav.param_set_send(1, 191, b"WB_KP", 9.5, mavlink.MAV_PARAM_TYPE_REAL32)
+    m = recv(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "WB_KP")
+    assert m.param_value == pytest.approx(9.5) and m.param_count == len(store) and m.param_index == 0
+    assert store.get("WB_KP") == 9.5
+    gcs.mav.param_set_send(1, 0, b"WB_KI", 2.0, mavlink.MAV_PARAM_TYPE_REAL32)  # MAV_COMP_ID_ALL
+    m = recv(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "WB_KI")
+    assert m.param_value == pytest.approx(2.0)
+    assert store.flush()
+    assert json.loads((tmp_path / "p.json").read_text())["params"] == {"WB_KP": 9.5, "WB_KI": 2.0}
+
+
+def echo_and_text(gcs, name: str):
+    """The PARAM_VALUE echo for ``name`` and the STATUSTEXT, in whichever order they come."""
+    echo = text = None
+    deadline = time.monotonic() + 3
+    while (echo is None or text is None) and time.monotonic() < deadline:
+        m = gcs.recv_match(type=["PARAM_VALUE", "STATUSTEXT"], blocking=True, timeout=0.05)
+        if m is None:
+            continue
+        if m.get_type() == "STATUSTEXT":
+            text = m
+        elif m.param_id == name:
+            echo = m
+    return echo, text
+
+
+def test_refused_set_echoes_old_value_and_says_why(setup):
+    store, _, gcs = setup
+    gcs.mav.param_set_send(1, 191, b"WB_KP", 999.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    echo, text = echo_and_text(gcs, "WB_KP")
+    assert echo.param_value == pytest.approx(7.0)
+    assert "WB_KP" in text.text and "max" in text.text
+    assert text.severity == mavlink.MAV_SEVERITY_WARNING
+
+    gcs.mav.param_set_send(1, 191, b"WB_MODE", 2.5, mavlink.MAV_PARAM_TYPE_REAL32)
+    echo, text = echo_and_text(gcs, "WB_MODE")
+    assert echo.param_value == pytest.approx(3.0)
+    assert "whole number" in text.text
+
+    gcs.mav.param_set_send(1, 191, b"WB_NOPE", 1.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert "unknown" in recv(gcs, "STATUSTEXT").text
+    assert store.get("WB_KP") == 7.0 and store.get("WB_MODE") == 3.0
+
+
+def test_sets_addressed_elsewhere_are_ignored(setup):
+    store, _, gcs = setup
+    gcs.mav.param_set_send(1, 1, b"WB_KP", 20.0, mavlink.MAV_PARAM_TYPE_REAL32)  # to the autopilot
+    gcs.mav.param_set_send(2, 191, b"WB_KP", 21.0, mavlink.MAV_PARAM_TYPE_REAL32)  # another vehicle
+    gcs.mav.param_request_read_send(1, 191, b"WB_KP", -1)
+    m = recv(gcs, "PARAM_VALUE")
+    assert m.param_id == "WB_KP" and m.param_value == pytest.approx(7.0)
+    assert store.get("WB_KP") == 7.0
+
+
+def test_allow_list_refuses_other_ground_stations(tmp_path):
+    store = ParamStore(specs(), None)
+    bridge = Bridge(store, allowed_gcs=[200])
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{bridge.port}", source_system=255, source_component=190)
+    try:
+        gcs.mav.param_set_send(1, 191, b"WB_KP", 9.0, mavlink.MAV_PARAM_TYPE_REAL32)
+        echo, text = echo_and_text(gcs, "WB_KP")
+        assert echo.param_value == pytest.approx(7.0) and store.get("WB_KP") == 7.0
+        assert "255" in text.text
+    finally:
+        gcs.close()
+        bridge.close()
+
+
+def test_param_name_with_and_without_terminator():
+    assert param_name(b"WB_KP\x00\x00junk") == "WB_KP"
+    assert param_name("WB_LIM_TENDON_MM") == "WB_LIM_TENDON_MM"
+    assert param_name(b"ABCDEFGHIJKLMNOP") == "ABCDEFGHIJKLMNOP"
