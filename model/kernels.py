@@ -21,6 +21,8 @@ capped at ``Z_CAP`` and reported through the returned flag.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -34,7 +36,7 @@ K_STIFF = 1.5  # longest sub-step in units of the local time constant 1/|df/dz| 
 TOL_Z = 1e-8  # local error allowed per sub-step, in units of z
 NEWTON_ACCEPT = 1e-6  # relative Newton correction below which the forward solve stops
 Z_CAP = 1.0e6  # |z| beyond this is a diverged parameter set
-MAX_SUBSTEPS = 200_000
+MAX_SUBSTEPS = 20_000  # per sample; beyond this a parameter set counts as diverged
 
 
 @njit(cache=True, inline="always")
@@ -71,7 +73,7 @@ def dz_dw(p, z: float, sdw: float, sw: float) -> float:
 def integrate_z(p, w0: float, z0: float, w1: float) -> float:
     """State z after moving monotonically from (w0, z0) to w1.
 
-    Returns NaN only if the parameter set diverges (|z| > Z_CAP)."""
+    Returns NaN only if the parameter set diverges (|z| > Z_CAP or too stiff to integrate)."""
     if not (w1 == w1) or w1 == w0:
         return z0
     sdw = 1.0 if w1 > w0 else -1.0
@@ -82,9 +84,10 @@ def integrate_z(p, w0: float, z0: float, w1: float) -> float:
     for _ in range(MAX_SUBSTEPS):
         remaining = (w1 - w) * sdw
         if remaining <= 0.0:
-            break
+            return z
         # Step size from the local error of RK4 on the linearised ODE,
-        # err ~ (h J)^5 / 120 * |f| / J with J = |df/dz|, and h J <= K_STIFF.
+        # err ~ (h J)^5 / 120 * |f| / J with J = |df/dz|, and h J <= K_STIFF for stability;
+        # where z rests near saturation an L-stable step is taken instead.
         h = H_MAX
         last = False
         if h >= remaining:
@@ -96,36 +99,50 @@ def integrate_z(p, w0: float, z0: float, w1: float) -> float:
             last = False
         sw = _sgn(w + 0.5 * h * sdw)
         az = abs(z)
+        implicit = False
         if az > 0.0:
             zn = az ** n
             psi = _psi(p, sdw, sw, _sgn(z))
             k1 = A - zn * psi
-            jac = abs(n * zn / az * psi)
+            js = -n * zn / z * psi * sdw  # d(dz/ds)/dz along the path s = |w - w0|
+            jac = abs(js)
             if jac > 0.0:
-                hj = h * jac
-                if hj > K_STIFF:
-                    h = K_STIFF / jac
-                    last = False
-                    hj = K_STIFF
                 f = abs(k1)
-                if hj * hj * hj * hj * hj * f > 120.0 * TOL_Z * jac:
-                    h = (120.0 * TOL_Z * jac / f) ** 0.2 / jac
+                h_rk = h
+                if h_rk * jac > K_STIFF:
+                    h_rk = K_STIFF / jac
+                if f > 0.0 and (h_rk * jac) ** 5 * f > 120.0 * TOL_Z * jac:
+                    h_rk = (120.0 * TOL_Z * jac / f) ** 0.2 / jac
+                if h_rk < h and js < 0.0:
+                    # z rests near its saturation: an L-stable linearly implicit Euler step
+                    # (error ~ h^2 J |f| / 2) goes further than RK4 may
+                    h_be = h if f == 0.0 else min(h, math.sqrt(2.0 * TOL_Z / (jac * f)))
+                    if h_be > h_rk:
+                        h = h_be
+                        implicit = True
+                if not implicit and h_rk < h:
+                    h = h_rk
+                    last = False
+                elif implicit and h < remaining:
                     last = False
         else:
             k1 = A
         hs = h * sdw
-        k2 = dz_dw(p, z + 0.5 * hs * k1, sdw, sw)
-        k3 = dz_dw(p, z + 0.5 * hs * k2, sdw, sw)
-        k4 = dz_dw(p, z + hs * k3, sdw, sw)
-        z = z + hs * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+        if implicit:
+            z = z + hs * k1 / (1.0 - h * js)
+        else:
+            k2 = dz_dw(p, z + 0.5 * hs * k1, sdw, sw)
+            k3 = dz_dw(p, z + 0.5 * hs * k2, sdw, sw)
+            k4 = dz_dw(p, z + hs * k3, sdw, sw)
+            z = z + hs * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
         if not (abs(z) < Z_CAP):
             return np.nan
         if last:
-            break
+            return z
         w = w + hs
         if (w1 - w) * sdw <= 0.0:
-            break
-    return z
+            return z
+    return np.nan  # too stiff to integrate: treat as diverged
 
 
 @njit(cache=True, inline="always")
@@ -297,7 +314,7 @@ def forward_sse(p, u, w_meas, weight, w0: float, z0: float) -> float:
     zp = z0
     for k in range(u.shape[0]):
         w, z, st = forward_step(p, wp, zp, u[k])
-        if st == 2:
+        if st != 0:  # diverged, or u beyond the model's monotone range: not a candidate
             return np.inf
         wp = w
         zp = z

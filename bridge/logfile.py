@@ -1,0 +1,198 @@
+"""Reading logs (CSV ``t,u,warp[,airspeed]`` or the bridge's own, per wing) and writing files atomically.
+
+Real logs are messy. Repeated timestamps (a logger faster than its sensor)
+keep the last row of each; uneven sampling and gaps are fine for a rate
+independent model; rows with a missing or non-finite t, u or warp are dropped
+and counted. What cannot be repaired is refused with one line that says where:
+a missing column, a cell that is not a number, time running backwards, too
+short a log.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bridge.errors import UserError
+
+log = logging.getLogger(__name__)
+
+MAX_DROPPED_FRACTION = 0.2
+MISSING = {"", "nan", "na", "n/a", "null", "none", "-"}
+
+
+@dataclass
+class LogData:
+    """A cleaned log: t strictly increasing (s), u (mm), warp (deg) or None, airspeed (m/s) or None."""
+
+    t: np.ndarray
+    u: np.ndarray
+    warp: np.ndarray | None
+    airspeed: np.ndarray | None
+    path: str
+    rows_read: int
+    rows_dropped: int = 0
+    rows_merged: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
+def _columns_for(wing: str | None) -> tuple[str, str]:
+    if wing is None:
+        return "u", "warp"
+    if wing not in ("left", "right"):
+        raise UserError(f"--wing must be left or right (got {wing!r})")
+    return f"{wing}_u", f"{wing}_warp"
+
+
+def _number(cell: str, row: int, col: str) -> float:
+    s = cell.strip()
+    if s.lower() in MISSING:
+        return math.nan
+    try:
+        return float(s)
+    except ValueError:
+        raise UserError(f"row {row}, column {col!r}: not a number ({s[:20]!r})") from None
+
+
+def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: bool = True,
+             min_rows: int = 50) -> LogData:
+    """Read and clean a log; raises UserError with a one-line reason when it cannot be used."""
+    p = Path(path)
+    ucol, wcol = _columns_for(wing)
+    try:
+        fh = p.open(newline="", encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise UserError(f"{p}: no such file") from None
+    except (IsADirectoryError, PermissionError, OSError) as e:
+        raise UserError(f"{p}: cannot read ({e.strerror or e})") from None
+    with fh:
+        try:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise UserError(f"{p}: empty file (expected a CSV header with t,{ucol},{wcol})")
+            names = [h.strip().lower() for h in header]
+            wanted = ["t", ucol] + ([wcol] if require_warp else [])
+            missing = [c for c in wanted if c not in names]
+            if missing:
+                hint = " (a bridge log? pass --wing left|right)" if wing is None and "left_u" in names else ""
+                raise UserError(f"{p}: missing column(s) {', '.join(missing)}; found {', '.join(names[:12])}{hint}")
+            it, iu = names.index("t"), names.index(ucol)
+            iw = names.index(wcol) if wcol in names else None
+            ia = names.index("airspeed") if "airspeed" in names else None
+            t, u, w, a = [], [], [], []
+            rows = 0
+            for lineno, row in enumerate(reader, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                rows += 1
+                need = max(i for i in (it, iu, iw, ia) if i is not None)
+                if len(row) <= need:
+                    raise UserError(f"row {lineno}: {len(row)} cells, expected {len(names)}")
+                t.append(_number(row[it], lineno, "t"))
+                u.append(_number(row[iu], lineno, ucol))
+                w.append(_number(row[iw], lineno, wcol) if iw is not None else math.nan)
+                a.append(_number(row[ia], lineno, "airspeed") if ia is not None else math.nan)
+        except UnicodeDecodeError:
+            raise UserError(f"{p}: not a text CSV file") from None
+        except csv.Error as e:
+            raise UserError(f"{p}: malformed CSV ({e})") from None
+    return clean(np.array(t), np.array(u), np.array(w) if iw is not None else None,
+                 np.array(a) if ia is not None else None, str(p), rows, require_warp, min_rows)
+
+
+def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows: int = 50) -> LogData:
+    """Drop non-finite rows, merge repeated timestamps (keep the last), refuse time running backwards."""
+    notes: list[str] = []
+    ok = np.isfinite(t) & np.isfinite(u)
+    if w is not None and require_warp:
+        ok &= np.isfinite(w)
+    dropped = int((~ok).sum())
+    if rows and dropped > MAX_DROPPED_FRACTION * rows:
+        raise UserError(f"{path}: {dropped} of {rows} rows have a missing or non-finite t/u/warp "
+                        f"(more than {MAX_DROPPED_FRACTION:.0%}); fix the log")
+    if dropped:
+        notes.append(f"dropped {dropped} rows with missing or non-finite values")
+    t, u = t[ok], u[ok]
+    w = w[ok] if w is not None else None
+    a = a[ok] if a is not None else None
+    if t.size:
+        back = np.flatnonzero(np.diff(t) < 0)
+        if back.size:
+            k = int(back[0]) + 1
+            raise UserError(f"{path}: time goes backwards at data row {k + 1} (t={t[k]:g} after {t[k - 1]:g}); "
+                            "the log may hold several runs: split it")
+    # repeated timestamps: keep the last row of each
+    last = np.ones(t.size, bool)
+    if t.size > 1:
+        last[:-1] = np.diff(t) > 0
+    merged = int((~last).sum())
+    if merged:
+        notes.append(f"merged {merged} rows with repeated timestamps (kept the last of each)")
+    t, u = t[last], u[last]
+    w = w[last] if w is not None else None
+    a = a[last] if a is not None else None
+    if t.size < min_rows:
+        raise UserError(f"{path}: log too short ({t.size} usable rows, need at least {min_rows})")
+    if a is not None:
+        fin = np.isfinite(a)
+        if not fin.any():
+            a = None
+        elif not fin.all():
+            idx = np.flatnonzero(fin)
+            a = np.interp(np.arange(a.size), idx, a[idx])
+            notes.append(f"filled {int((~fin).sum())} missing airspeed values")
+    if t.size > 2:
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        gaps = int((dt > 10 * med).sum())
+        if gaps:
+            notes.append(f"{gaps} gaps longer than 10 sample periods")
+    for n in notes:
+        log.info("%s: %s", path, n)
+    return LogData(t=t, u=u, warp=w, airspeed=a, path=path, rows_read=rows, rows_dropped=dropped,
+                   rows_merged=merged, notes=notes)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write a file so that it is either the old one or the complete new one, never half-written."""
+    p = Path(path)
+    d = p.parent if str(p.parent) else Path(".")
+    if not d.is_dir():
+        raise UserError(f"{p}: directory {d} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=d)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def write_csv_atomic(path: str | os.PathLike, columns: dict[str, np.ndarray], fmt: str = "%.9g") -> None:
+    """Write columns (equal lengths) as a CSV with a header, atomically."""
+    names = list(columns)
+    arrs = [np.asarray(columns[k], dtype=np.float64) for k in names]
+    n = {a.size for a in arrs}
+    if len(n) != 1:
+        raise ValueError("columns must have equal lengths")
+    lines = [",".join(names)]
+    data = np.column_stack(arrs) if arrs else np.zeros((0, 0))
+    lines.extend(",".join(fmt % v for v in row) for row in data)
+    write_text_atomic(path, "\n".join(lines) + "\n")

@@ -1,0 +1,39 @@
+"""Reading and writing MODEL.json files (format ``warpbridge-model/1``), with one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from bridge.errors import UserError
+from bridge.logfile import write_text_atomic
+from model.modelfile import ModelFile
+
+
+def load_model(path: str | os.PathLike) -> ModelFile:
+    """Load a model file; ``paper`` gives the paper's identified model."""
+    if str(path) == "paper":
+        from model.boucwen import BoucWenParams
+
+        return ModelFile(params=BoucWenParams.paper(), meta={"source": "Lee et al. 2017, eq. (2)"})
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserError(f"{p}: no such model file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise UserError(f"{p}: cannot read model file ({e})") from None
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise UserError(f"{p}: not valid JSON (line {e.lineno}: {e.msg})") from None
+    try:
+        return ModelFile.from_dict(d)
+    except ValueError as e:
+        raise UserError(f"{p}: {e}") from None
+
+
+def save_model(path: str | os.PathLike, model: ModelFile) -> None:
+    """Write a model file atomically."""
+    write_text_atomic(path, json.dumps(model.to_dict(), indent=2, allow_nan=False) + "\n")

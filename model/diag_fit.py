@@ -1,0 +1,357 @@
+"""Fitting the effects' augmentations of a nominal model to a log, on training segments only.
+
+``Problem`` holds a cleaned log, the nominal model (Bouc-Wen parameters, the
+effects it already carries, z0) and a blocked train/score split. It predicts
+the measured warp for any ``Effects`` with the same operators, in the same
+order, as ``model.plant.Plant.simulate``, and caches the expensive part (the
+Bouc-Wen forward map, which depends only on the input-side effects and the
+friction scale).
+
+The output side is affine in the linear parameters (aero load gain and offset,
+drift), even through the sensor lag, which is a linear filter::
+
+    w_meas = lag(w_core) - g lag(q w_core) - c lag(q) + d (t - t0)
+
+so those are solved by least squares inside every evaluation (variable
+projection) and the searches run only over the nonlinear parameters: a grid
+for a good start, then bounded Brent (one parameter) or Nelder-Mead (more),
+in a box normalised to [0, 1] per parameter.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from model.boucwen import BoucWenParams, forward
+from model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
+from model.identify import reversal_indices, warmup_end
+
+log = logging.getLogger(__name__)
+
+LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
+INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale")
+
+
+# ---- the train / score split -------------------------------------------------------------------
+
+@dataclass
+class Split:
+    """Blocked split after the warm-up: ``train`` and ``score`` masks, ``chunks`` labels the scored
+    samples for paired tests (-1 elsewhere)."""
+
+    train: np.ndarray
+    score: np.ndarray
+    chunks: np.ndarray
+    start: int
+    blocks: list[tuple[int, int, str]]
+
+
+SCORE_PATTERN = (1, 4, 6, 9)  # of 10 blocks: 40 % scored, spread over the log, the last block scored
+
+
+def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float | None = None) -> Split:
+    """Alternating contiguous blocks: blocks 1, 4, 6, 9 of 10 scored, the rest trained on.
+
+    Scored blocks are cut into chunks of ``chunk_s`` (default: a tenth of a block, at least 1 s
+    and at least 20 samples) for the paired tests."""
+    n = t.size
+    start = warmup_end(u)
+    edges = np.linspace(t[start], t[-1], n_blocks + 1)
+    pos = np.searchsorted(edges, t, side="right") - 1
+    pos = np.clip(pos, 0, n_blocks - 1)
+    train = np.zeros(n, bool)
+    score = np.zeros(n, bool)
+    after = np.arange(n) >= start
+    is_score = np.isin(pos, [p for p in SCORE_PATTERN if p < n_blocks])
+    score[after & is_score] = True
+    train[after & ~is_score] = True
+    span = (t[-1] - t[start]) / n_blocks
+    fs = (n - 1) / max(t[-1] - t[0], 1e-12)
+    if chunk_s is None:
+        chunk_s = max(1.0, span / 10.0, 20.0 / fs)
+    from model.diag_stats import chunk_ids
+
+    chunks = chunk_ids(score, t, chunk_s)
+    blocks = []
+    for b in range(n_blocks):
+        idx = np.flatnonzero(after & (pos == b))
+        if idx.size:
+            blocks.append((int(idx[0]), int(idx[-1]) + 1, "score" if b in SCORE_PATTERN else "train"))
+    return Split(train, score, chunks, start, blocks)
+
+
+# ---- parameter boxes ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Box:
+    """One nonlinear parameter: search variable s in [0, 1] -> physical value."""
+
+    field: str
+    lo: float
+    hi: float
+    log: bool = False
+    neutral_at_hi: bool = False  # rate limit: the top of the box means "no limit"
+
+    def value(self, s: float) -> float:
+        s = min(max(float(s), 0.0), 1.0)
+        if self.log:
+            v = math.exp(math.log(self.lo) + s * (math.log(self.hi) - math.log(self.lo)))
+        else:
+            v = self.lo + s * (self.hi - self.lo)
+        if self.neutral_at_hi and s >= 1.0:
+            return math.inf
+        return v
+
+    def coord(self, v: float) -> float:
+        if self.neutral_at_hi and not math.isfinite(v):
+            return 1.0
+        if self.log:
+            v = max(v, self.lo)
+            s = (math.log(v) - math.log(self.lo)) / (math.log(self.hi) - math.log(self.lo))
+        else:
+            s = (v - self.lo) / (self.hi - self.lo)
+        return min(max(s, 0.0), 1.0)
+
+
+def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
+    """Search boxes of an effect's nonlinear parameters, scaled to the log (empty: linear effect)."""
+    dur = float(t[-1] - t[0])
+    fs = (t.size - 1) / max(dur, 1e-12)
+    lo_u, hi_u = np.percentile(u, [0.5, 99.5])
+    span = max(float(hi_u - lo_u), 1e-9)
+    tmax = min(0.5, 0.05 * dur)
+    tmin = min(0.5 / fs, 0.1 * tmax)
+    if name == "delay":
+        return [Box("delay_s", tmin, tmax, log=True)]
+    if name == "sensor_lag":
+        return [Box("sensor_tau_s", tmin, tmax, log=True)]
+    if name == "rate_limit":
+        dt = np.diff(t)
+        rate = np.abs(np.diff(u)) / np.where(dt > 0, dt, np.inf)
+        vmax = float(np.max(rate)) if rate.size else 1.0
+        vmax = max(vmax, 1e-9)
+        return [Box("rate_mm_s", 0.02 * vmax, 1.02 * vmax, log=True, neutral_at_hi=True)]
+    if name == "backlash":
+        return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
+    if name == "friction":
+        return [Box("friction_scale", 0.2, 5.0, log=True)]
+    if name == "pretension":
+        return [Box("pretension_offset_mm", -0.5 * span, 0.5 * span), Box("pretension_gain", 0.5, 2.0, log=True)]
+    return []
+
+
+def linear_fields(name: str) -> tuple[str, ...]:
+    """The effect's parameters that enter the output affinely (solved by least squares)."""
+    return tuple(f for f in EFFECT_FIELDS[name][0] if f in LINEAR_FIELDS)
+
+
+# ---- the problem -------------------------------------------------------------------------------
+
+@dataclass
+class Fit:
+    """Fitted augmentation: the full effects (nominal's plus fitted), its prediction and errors."""
+
+    names: tuple[str, ...]
+    effects: Effects
+    w_pred: np.ndarray = field(repr=False)
+    train_mse: float
+    score_mse: float
+    n_params: int
+    evaluations: int = 0
+
+    def values(self, names=None) -> dict[str, dict[str, float]]:
+        """{effect: {parameter: value}} of the named (default: fitted) effects."""
+        out = {}
+        for n in names or self.names:
+            out[n] = {f: _jsonable(getattr(self.effects, f)) for f in EFFECT_FIELDS[n][0]}
+        return out
+
+
+def _jsonable(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+class Problem:
+    """A log and a nominal model to be augmented; see the module docstring."""
+
+    def __init__(self, t, u, w, airspeed, params: BoucWenParams, effects: Effects, z0: float = 0.0,
+                 split: Split | None = None) -> None:
+        self.t = np.ascontiguousarray(t, dtype=np.float64)
+        self.u = np.ascontiguousarray(u, dtype=np.float64)
+        self.w = np.ascontiguousarray(w, dtype=np.float64)
+        self.airspeed = None if airspeed is None else np.ascontiguousarray(airspeed, dtype=np.float64)
+        self.q = None if self.airspeed is None else dynamic_pressure_kpa(self.airspeed)
+        self.params = params
+        self.base = effects
+        self.z0 = float(z0)
+        self.split = split or make_split(self.t, self.u)
+        self.tau = self.t - self.t[0]
+        self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self.evaluations = 0
+        self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
+
+    # -- prediction --
+    def core(self, eff: Effects) -> np.ndarray:
+        """Bouc-Wen forward warp for the input-side effects and friction of ``eff`` (cached)."""
+        key = tuple(getattr(eff, f) for f in INPUT_FIELDS)
+        hit = self._core.get(key)
+        if hit is not None:
+            self._core.move_to_end(key)
+            return hit
+        x = apply_input_effects(eff, self.t, self.u)
+        p = self.params if eff.friction_scale == 1.0 else replace(self.params, az=self.params.az * eff.friction_scale)
+        w, _, _ = forward(p, x, z0=self.z0)
+        self.evaluations += 1
+        self._core[key] = w
+        if len(self._core) > 8:
+            self._core.popitem(last=False)
+        return w
+
+    def _lag(self, x: np.ndarray, tau: float) -> np.ndarray:
+        if tau > 0:
+            return lagged(self.t, np.ascontiguousarray(x), tau, float(x[0]))
+        return x
+
+    def affine(self, eff: Effects, free: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """(base, basis): w_meas = base + basis @ theta for the free linear fields (others fixed)."""
+        wc = self.core(eff)
+        tau = eff.sensor_tau_s
+        base = self._lag(wc, tau)
+        cols = []
+        aero = self.q is not None
+        g, c, d = eff.aero_gain_per_kpa, eff.aero_deg_per_kpa, eff.drift_deg_s
+        if aero and ("aero_gain_per_kpa" in free or g != 0.0):
+            lqw = self._lag(self.q * wc, tau)
+            if "aero_gain_per_kpa" in free:
+                cols.append(-lqw)
+            else:
+                base = base - g * lqw
+        if aero and ("aero_deg_per_kpa" in free or c != 0.0):
+            lq = self._lag(self.q, tau)
+            if "aero_deg_per_kpa" in free:
+                cols.append(-lq)
+            else:
+                base = base - c * lq
+        if "drift_deg_s" in free:
+            cols.append(self.tau)
+        elif d != 0.0:
+            base = base + d * self.tau
+        basis = np.column_stack(cols) if cols else np.zeros((self.t.size, 0))
+        return base, basis
+
+    def predict(self, eff: Effects) -> np.ndarray:
+        """Measured warp the augmented model predicts (identical to ``Plant.simulate``)."""
+        base, _ = self.affine(eff, ())
+        return base
+
+    def solve_linear(self, eff: Effects, free: tuple[str, ...]) -> tuple[Effects, np.ndarray]:
+        """Least-squares values of the free linear fields on the training samples."""
+        free = tuple(f for f in free if f == "drift_deg_s" or self.q is not None)
+        base, basis = self.affine(eff, free)
+        if not free:
+            return eff, base
+        m = self.split.train
+        y = self.w[m] - base[m]
+        A = basis[m]
+        scale = np.sqrt(np.sum(A ** 2, axis=0))
+        scale[scale == 0] = 1.0
+        theta, *_ = np.linalg.lstsq(A / scale, y, rcond=None)
+        theta = theta / scale
+        if not np.all(np.isfinite(theta)):
+            theta = np.zeros(len(free))
+        eff = replace(eff, **{f: float(v) for f, v in zip(free, theta, strict=True)})
+        return eff, base + basis @ theta
+
+    def mse(self, w_pred: np.ndarray, mask: np.ndarray) -> float:
+        e = self.w[mask] - w_pred[mask]
+        v = float(np.mean(e * e)) if e.size else math.nan
+        return v if math.isfinite(v) else math.inf
+
+    # -- fitting --
+    def fit(self, names, start: Effects | None = None, free_nonlinear=None, max_evals: int = 200,
+            grid_for: str | None = None) -> Fit:
+        """Fit the effects ``names`` (their parameters on top of ``start``, default the nominal's).
+
+        ``free_nonlinear`` limits which effects' nonlinear parameters move (default: all of ``names``);
+        linear ones of every named effect are always solved. ``grid_for`` names the effect whose
+        parameters get a starting grid (default: the last of ``names``)."""
+        names = tuple(names)
+        start = start or self.base
+        movers = tuple(names if free_nonlinear is None else free_nonlinear)
+        boxes = [b for n in movers for b in boxes_for(n, self.t, self.u)]
+        lin = tuple(f for n in names for f in linear_fields(n))
+        if "aero_load" in names and self.q is None:
+            raise ValueError("aero_load needs airspeed in the log")
+        n_params = sum(len(EFFECT_FIELDS[n][0]) for n in names)
+        evals0 = self.evaluations
+        tm = self.split.train
+
+        def build(s: np.ndarray) -> Effects:
+            return replace(start, **{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
+
+        def cost(s: np.ndarray) -> float:
+            eff, wp = self.solve_linear(build(s), lin)
+            return self.mse(wp, tm)
+
+        s0 = np.array([b.coord(getattr(start, b.field)) for b in boxes])
+        if boxes:
+            s0 = self._grid_start(boxes, s0, cost, grid_for or names[-1], movers)
+            if len(boxes) == 1:
+                s0 = self._brent(cost, s0)
+            else:
+                s0 = self._nelder_mead(cost, s0, max_evals)
+        eff, wp = self.solve_linear(build(s0), lin)
+        return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), n_params,
+                   self.evaluations - evals0)
+
+    def _grid_start(self, boxes: list[Box], s0: np.ndarray, cost, grid_name: str, movers) -> np.ndarray:
+        idx = [i for i, b in enumerate(boxes) if b.field in EFFECT_FIELDS[grid_name][0]] if grid_name in movers else []
+        if not idx:
+            return s0
+        if len(idx) == 1:
+            pts = [np.array([g]) for g in np.linspace(0.0, 1.0, 13)]
+        else:
+            g = np.linspace(0.0, 1.0, 7)
+            pts = [np.array([a, b]) for a in g for b in g[1:-1]]
+        best, best_c = s0, cost(s0)
+        for p in pts:
+            s = s0.copy()
+            s[idx] = p
+            c = cost(s)
+            if c < best_c:
+                best, best_c = s, c
+        return best
+
+    @staticmethod
+    def _brent(cost, s0: np.ndarray) -> np.ndarray:
+        x0 = float(s0[0])
+        lo, hi = max(0.0, x0 - 1.0 / 12), min(1.0, x0 + 1.0 / 12)
+        c0 = cost(s0)
+        r = minimize_scalar(lambda x: cost(np.array([x])), bounds=(lo, hi), method="bounded",
+                            options={"xatol": 1e-4, "maxiter": 40})
+        return np.array([r.x]) if r.fun <= c0 else s0
+
+    @staticmethod
+    def _nelder_mead(cost, s0: np.ndarray, max_evals: int) -> np.ndarray:
+        d = s0.size
+        simplex = [s0]
+        for i in range(d):
+            s = s0.copy()
+            s[i] = s[i] + 0.06 if s[i] + 0.06 <= 1.0 else s[i] - 0.06
+            simplex.append(s)
+        c0 = cost(s0)
+        r = minimize(cost, s0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * d,
+                     options={"initial_simplex": np.array(simplex), "maxfev": max_evals, "xatol": 2e-4,
+                              "fatol": 1e-12 * max(c0, 1e-12), "adaptive": d > 2})
+        return np.clip(r.x, 0.0, 1.0) if r.fun <= c0 else s0
+
+
+def input_reversal_count(u: np.ndarray) -> int:
+    """Number of direction changes of the tendon input."""
+    return int(reversal_indices(u).size)

@@ -1,0 +1,114 @@
+"""The model commands end to end on real files: simulate -> identify -> predict, and clear errors on bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bridge.cli import main
+
+
+def run(*args):
+    return main([str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    assert run("simulate", "-o", d / "bench.csv", "--duration", 30, "--rate", 200, "--seed", 1) == 0
+    assert run("simulate", "-o", d / "check.csv", "--duration", 20, "--rate", 200, "--excitation", "multisine",
+               "--seed", 2) == 0
+    assert run("identify", d / "bench.csv", "-o", d / "model.json", "--plot", d / "id.png", "--quiet",
+               "--maxiter", 60) == 0
+    return d
+
+
+def test_identify_writes_a_versioned_model_with_its_fit_quality(workdir):
+    m = json.loads((workdir / "model.json").read_text())
+    assert m["format"] == "warpbridge-model/1"
+    for k in ("train_rms_deg", "heldout_rms_deg", "noise_deg"):
+        assert m["fit"][k] > 0
+    assert m["fit"]["heldout_rms_deg"] < 1.3 * m["fit"]["noise_deg"]
+    assert (workdir / "id.png").stat().st_size > 10_000
+
+
+def test_predict_writes_t_and_warp_pred_matching_the_log(workdir):
+    assert run("predict", workdir / "check.csv", "--model", workdir / "model.json", "-o", workdir / "pred.csv") == 0
+    lines = (workdir / "pred.csv").read_text().splitlines()
+    assert lines[0] == "t,warp_pred"
+    pred = np.loadtxt(workdir / "pred.csv", delimiter=",", skiprows=1)
+    log = np.loadtxt(workdir / "check.csv", delimiter=",", skiprows=1)
+    assert pred.shape[0] == log.shape[0]
+    assert np.sqrt(np.mean((pred[:, 1] - log[:, 2]) ** 2)) < 0.07
+
+
+def test_model_file_round_trips_through_predict(workdir):
+    # a model with effects: predict applies them (delay shifts the prediction)
+    m = json.loads((workdir / "model.json").read_text())
+    m["effects"] = {"delay": {"delay_s": 0.2}}
+    (workdir / "delayed.json").write_text(json.dumps(m))
+    assert run("predict", workdir / "check.csv", "--model", workdir / "delayed.json", "-o", workdir / "p2.csv") == 0
+    a = np.loadtxt(workdir / "pred.csv", delimiter=",", skiprows=1)[:, 1]
+    b = np.loadtxt(workdir / "p2.csv", delimiter=",", skiprows=1)[:, 1]
+    assert np.allclose(b[40:], a[:-40], atol=1e-6)  # 0.2 s at 200 Hz
+
+
+def test_repeated_rows_and_uneven_sampling_are_handled(workdir, tmp_path):
+    log = np.loadtxt(workdir / "bench.csv", delimiter=",", skiprows=1)
+    rng = np.random.default_rng(0)
+    keep = np.sort(rng.choice(log.shape[0], int(0.7 * log.shape[0]), replace=False))  # uneven
+    rows = log[keep]
+    rows = np.repeat(rows, rng.integers(1, 4, rows.shape[0]), axis=0)  # repeated rows
+    rows[5, 2] = np.nan  # a missing cell
+    path = tmp_path / "messy.csv"
+    np.savetxt(path, rows, delimiter=",", header="t,u,warp,airspeed", comments="", fmt="%.9g")
+    assert run("predict", path, "--model", workdir / "model.json", "-o", tmp_path / "p.csv") == 0
+
+
+BAD_LOGS = {
+    "missing_column": ("t,u\n0,1\n", "missing column"),
+    "not_a_number": ("t,u,warp\n" + "".join(f"{i * 0.01},{i},{i}\n" for i in range(60)) + "0.6,abc,1\n",
+                     "not a number"),
+    "time_backwards": ("t,u,warp\n" + "".join(f"{(i if i != 30 else 5) * 0.01},{i},{i}\n" for i in range(60)),
+                       "backwards"),
+    "too_short": ("t,u,warp\n0,1,1\n0.1,2,2\n", "too short"),
+    "empty": ("", "empty"),
+    "mostly_nan": ("t,u,warp\n" + "".join(f"{i * 0.01},nan,{i}\n" for i in range(60)), "non-finite"),
+    "never_reverses": ("t,u,warp\n" + "".join(f"{i * 0.01},{i},{i * 0.5}\n" for i in range(200)), "never reverses"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_LOGS))
+def test_bad_logs_get_a_one_line_error_and_nonzero_exit(name, tmp_path, capsys):
+    text, needle = BAD_LOGS[name]
+    path = tmp_path / f"{name}.csv"
+    path.write_text(text)
+    out = tmp_path / "m.json"
+    out.write_text("precious")
+    rc = run("identify", path, "-o", out, "--quiet")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert len(err) == 1 and needle in err[0] and "Traceback" not in err[0]
+    assert out.read_text() == "precious"  # never overwritten on failure
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("{not json", "not valid JSON"),
+    ('{"format": "warpbridge-model/2", "params": {}}', "unsupported model format version"),
+    ('{"params": {}}', "no \\\"format\\\""),
+    ('{"format": "something-else/1"}', "not a warpbridge model file"),
+    ('{"format": "warpbridge-model/1", "params": {"a1": 1}}', "lack"),
+])
+def test_bad_models_get_a_one_line_error(content, needle, workdir, tmp_path, capsys):
+    path = tmp_path / "bad.json"
+    path.write_text(content)
+    rc = run("predict", workdir / "check.csv", "--model", path, "-o", tmp_path / "p.csv")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0 and len(err) == 1
+    assert needle.replace("\\", "") in err[0]
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_missing_files_are_reported_not_raised(tmp_path, capsys):
+    assert run("identify", tmp_path / "nope.csv", "-o", tmp_path / "m.json") != 0
+    assert "no such file" in capsys.readouterr().err
