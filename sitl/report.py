@@ -1,0 +1,86 @@
+"""SITL results for people: the comparison table in the terminal and a PNG per run.
+
+``comparison_table(rows)`` formats lock-step ``CompareRow`` s (RMS tracking error
+per wing and mode, beside the paper's bench figures); ``run_table(results)``
+formats one or more runs' RMS per wing; ``plot_run(result, path)`` draws
+setpoint vs true warp, the tracking error and the hysteresis loop (tendon
+travel vs warp) for each wing, with matplotlib's Agg backend (no display).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from sitl.lockstep import PAPER_BENCH_RMS, CompareRow, RunResult
+
+MODE_LABEL = {"open": "open loop", "pi": "PI only", "ff": "feed-forward", "ff+pi": "feed-forward + PI"}
+
+
+def _num(v: float | None, width: int = 7) -> str:
+    return f"{'-':>{width}}" if v is None or not np.isfinite(v) else f"{v:{width}.3f}"
+
+
+def comparison_table(rows: Iterable[CompareRow]) -> str:
+    """RMS tracking error (deg) per scenario and mode, with the paper's bench figure where it has one."""
+    head = f"{'scenario':<9} {'mode':<18} {'left':>7} {'right':>7} {'mean':>7} {'paper':>7}"
+    lines = [head, "-" * len(head)]
+    last = None
+    for r in rows:
+        if last is not None and r.scenario != last:
+            lines.append("")
+        last = r.scenario
+        lines.append(f"{r.scenario:<9} {MODE_LABEL.get(r.mode, r.mode):<18} {_num(r.rms_left)} "
+                     f"{_num(r.rms_right)} {_num(r.rms_mean)} {_num(r.paper)}")
+    lines.append("")
+    lines.append("RMS of setpoint - true warp, deg. Paper (Lee et al. 2017, bench, 1 Hz 4 deg random): "
+                 + ", ".join(f"{MODE_LABEL[m]} {v:g}" for m, v in PAPER_BENCH_RMS.items()) + ".")
+    return "\n".join(lines)
+
+
+def run_table(results: dict[str, RunResult]) -> str:
+    """RMS per wing for named runs (e.g. {"real time": ..., "lock-step": ...})."""
+    head = f"{'run':<12} {'scenario':<9} {'mode':<18} {'left':>7} {'right':>7} {'samples':>8}"
+    lines = [head, "-" * len(head)]
+    for name, r in results.items():
+        lines.append(f"{name:<12} {r.scenario:<9} {MODE_LABEL.get(r.mode, r.mode):<18} "
+                     f"{_num(r.rms.get('left'))} {_num(r.rms.get('right'))} {r.t.size:>8d}")
+    return "\n".join(lines)
+
+
+def plot_run(result: RunResult, path: str | Path, title: str | None = None) -> Path:
+    """PNG of one run: per wing, setpoint and warp over time, error, and the hysteresis loop."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    wings = list(result.setpoint)
+    fig, axes = plt.subplots(3, len(wings), figsize=(6 * len(wings), 9), squeeze=False)
+    for j, w in enumerate(wings):
+        t, sp, wt = result.t, result.setpoint[w], result.warp[w]
+        ax = axes[0, j]
+        ax.plot(t, sp, "--", lw=1, label="setpoint")
+        ax.plot(t, wt, lw=1, label="warp (true)")
+        ax.set_title(f"{w} wing: RMS {result.rms.get(w, float('nan')):.3f} deg")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("warp (deg)")
+        ax.legend(loc="upper right", fontsize=8)
+        ax = axes[1, j]
+        ax.plot(t, sp - wt, lw=0.8, color="C3")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("setpoint - warp (deg)")
+        ax = axes[2, j]
+        ax.plot(result.u[w], wt, lw=0.6, color="C2")
+        ax.set_xlabel("tendon travel u (mm)")
+        ax.set_ylabel("warp (deg)")
+        ax.set_title("hysteresis (tendon -> warp)")
+    fig.suptitle(title or f"{result.scenario}, {MODE_LABEL.get(result.mode, result.mode)}")
+    fig.tight_layout()
+    p = Path(path)
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    return p
