@@ -4,15 +4,26 @@
 ``link.poll()`` (non-blocking) and the parameter server, the mixer turns the FC's
 aileron PWM into a warp setpoint per wing, the sensor counts become degrees,
 each ``WingController`` gives a tendon travel, the servo calibration a pulse,
-and telemetry and the cycle log take their copies. ``run_bridge(config)`` runs
-ticks at the loop rate with absolute deadlines until stopped.
+and telemetry and the cycle log take their copies. The link can be handed in
+(``Bridge(config, link=...)``: anything with ``FcLink``'s interface, e.g. the
+lock-step SITL's), as can the servo and sensor objects.
 
-Failsafes (each reported once by STATUSTEXT, cleared when over): no servo
-message for ``WB_FS_TMO`` s -> every wing to its neutral warp (bias); a wing's
-PWM invalid for that long -> that wing to neutral; sensor missing, outside its
-calibration table or frozen (same raw reading for ``sensor_frozen_s`` while the
-command moves) -> that wing on feed-forward only, integrator held; servo port
-lost -> keep running, reopen with back-off. No subsystem's exception stops the loop.
+``run_bridge(config)`` runs ticks at the loop rate with absolute deadlines until
+stopped; with ``[loop] wake_on_message`` (default) it also runs a cycle as soon
+as anything arrives on the link between two ticks, so a servo message reaches
+the servo without waiting for the next tick. The fixed-rate ticks happen
+regardless, so the failsafe timer and the telemetry never depend on the FC.
+The controller integrates over the real time between cycles.
+
+Failsafes (each reported once by STATUSTEXT when the link can carry it, cleared
+when over): no servo message yet, or none for ``WB_FS_TMO`` s -> every wing to
+its neutral warp (bias); a wing's PWM invalid for that long -> that wing to
+neutral; sensor missing, outside its calibration table or frozen (same raw
+reading for ``sensor_frozen_s`` while the command moves) -> that wing on
+feed-forward only, integrator held; servo port lost -> keep running, reopen with
+back-off; servo board error bits (Maestro Get Errors, FC refusing DO_SET_SERVO /
+DO_SET_ACTUATOR) -> one STATUSTEXT until the board reports no error again. No
+subsystem's exception stops the loop.
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -30,12 +42,13 @@ from bridge.config import WINGS, Config, WingConfig, backend_has_sensor
 from bridge.controller import MODES, WingController
 from bridge.cyclelog import CycleLog
 from bridge.errors import UserError
-from bridge.link import MSG_SERVO_OUTPUT_RAW, FcLink
+from bridge.link import FcLink
 from bridge.loop_timer import LoopTimer, TimerStats
 from bridge.mavlink_env import mavlink
 from bridge.mixer import Mixer
 from bridge.param_server import ParamServer
 from bridge.params import ParamSpec, ParamStore
+from bridge.signing import policy_from_config
 from bridge.telemetry import MODE_CODES, Telemetry
 from hw import DeviceError, open_sensor, open_servo
 from hw.calibration import SensorCalibration, ServoCalibration
@@ -50,6 +63,8 @@ SEV_CRITICAL, SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = (
 SERVO_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 SENSOR_MOVE_MM = 0.3  # the command must move this much for an unchanged reading to count as frozen
 ERROR_POLL_S = 1.0
+DT_MAX_S = 0.1  # the controller never integrates over a longer gap than this
+ACK_COMMANDS = (mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_ACTUATOR)
 TAG = {"left": "L", "right": "R"}
 # the model parameters in MAVLink order: WB_BW_<suffix> -> BoucWenParams field (b as B1..B6)
 BW_FIELDS = ("A1", "A2", "A3", "AZ", "A", "N", "B1", "B2", "B3", "B4", "B5", "B6")
@@ -133,16 +148,20 @@ class RunResult:
 class Bridge:
     """All parts of the running bridge; ``tick()`` is one control cycle."""
 
-    def __init__(self, config: Config, *, servo: Any = None, sensor: Any = None,
+    def __init__(self, config: Config, *, servo: Any = None, sensor: Any = None, link: Any = None,
                  clock: Callable[[], float] = time.monotonic, connect_timeout: float = 0.0) -> None:
+        """``servo``/``sensor``/``link`` replace the configured ones (the caller keeps owning them)."""
         self.config, self.clock = config, clock
         self.model = load_model(config)
         self.has_sensor = backend_has_sensor(config.sensor_backend) or sensor is not None
         self.fs_timeout = config.loop.failsafe_timeout_s
         self.dt = 1.0 / config.loop.rate_hz
-        self.link = FcLink(config.link.connection, servo_rate_hz=config.link.servo_rate_hz,
-                           rerequest_s=config.link.rerequest_s, source_system=config.link.source_system,
-                           clock=clock)
+        self._owns_link = link is None
+        if link is None:
+            link = FcLink(config.link.connection, servo_rate_hz=config.link.servo_rate_hz,
+                          rerequest_s=config.link.rerequest_s, source_system=config.link.source_system,
+                          signing=policy_from_config(config.link), clock=clock)
+        self.link = link
         self.telemetry = Telemetry(self.link, config.telemetry_rate_hz, clock=clock)
         self.mixer = Mixer(config.wings)
         self.wings: dict[str, WingState] = {}
@@ -159,40 +178,48 @@ class Bridge:
             ctl = WingController(self.model, mode=c.mode, kp=c.kp, ki=c.ki, i_max=c.i_max_mm,
                                  u_min=lo if c.u_min_mm is None else c.u_min_mm,
                                  u_max=hi if c.u_max_mm is None else c.u_max_mm, w_max=wc.max_warp_deg,
-                                 deadband=c.deadband_deg, w0=self.mixer.wings[name].neutral_deg)
+                                 deadband=self._deadband(name), w0=self.mixer.wings[name].neutral_deg)
             self.wings[name] = WingState(wc, ctl, scal, ecal, setpoint=self.mixer.wings[name].neutral_deg)
-        self.store = ParamStore(param_specs(config, self.model, self._apply_param), config.params_file)
-        self.params = ParamServer(self.store, self.link, allowed_gcs=config.link.gcs_sysid_allow, clock=clock)
-        for name in self.store.names:  # values set earlier over MAVLink override the config
-            if self.store.get(name) != self.store.specs[name].default:
-                self._apply_param(name, self.store.get(name))
-        if connect_timeout > 0:
-            self.link.connect(connect_timeout)
         self.servo, self.sensor = servo, sensor
-        self._servo_down_since: float | None = None
-        self._servo_retry_at = 0.0
-        self._servo_tries = 0
         self._owns_devices = servo is None
-        if servo is None:
-            self._open_devices(initial=True)
-        self.log = CycleLog(config.loop.log) if config.loop.log is not None else None
+        self.log = None
+        self.store = ParamStore(param_specs(config, self.model, self._apply_param), config.params_file)
+        try:
+            self.params = ParamServer(self.store, self.link, allowed_gcs=config.link.gcs_sysid_allow, clock=clock)
+            for name in self.store.names:  # values set earlier over MAVLink override the config
+                if self.store.get(name) != self.store.specs[name].default:
+                    self._apply_param(name, self.store.get(name))
+            if connect_timeout > 0:
+                self.link.connect(connect_timeout)
+            self._servo_down_since: float | None = None
+            self._servo_retry_at = 0.0
+            self._servo_tries = 0
+            if servo is None:
+                self._open_devices(initial=True)
+            self.log = CycleLog(config.loop.log) if config.loop.log is not None else None
+        except BaseException:
+            self.close()
+            raise
         self.start = clock()
         self.failsafe = True  # until the first servo message
         self.failsafe_entries = 0
         self.cycles = 0
+        self._last_tick: float | None = None
         self._next_error_poll = 0.0
-        if self.store.load_report:
-            self.telemetry.status(SEV_WARNING, self.store.load_report)
+        self._load_report = self.store.load_report  # sent once the link can carry it
+
+    def _deadband(self, name: str) -> float:
+        """The wing's setpoint play: +-``pwm_jitter_us`` through its deg-per-us scaling."""
+        return self.mixer.wings[name].jitter_deadband(self.config.link.pwm_jitter_us)
 
     # ------------------------------------------------------------------ devices
 
     def _open_devices(self, initial: bool = False) -> None:
         cfg = self.config
-        limits = {w.servo_channel: (w.servo.pulse_min_us, w.servo.pulse_max_us) for w in cfg.wings.values()}
         try:
-            self.servo = open_servo(cfg.servo_backend, mavlink_sender=self.link, limits=limits,
+            self.servo = open_servo(cfg.servo_backend, mavlink_sender=self.link, limits=servo_limits(cfg),
                                     **({"target_system": self.link.system_id or 1}
-                                       if cfg.servo_backend.startswith("fc") else {}))
+                                       if is_fc_backend(cfg.servo_backend) else {}))
         except ValueError as e:
             raise UserError(f"[servo] backend: {e}") from None
         except DeviceError as e:
@@ -251,15 +278,14 @@ class Bridge:
             self.mixer.retune(**{"WB_MAXWARP": {"max_warp_deg": v}, "WB_BIAS": {"bias_deg": v}}[name])
             for wname, w in self.wings.items():
                 w.ctl.set_model(self.model, w_max=self.mixer.wings[wname].max_warp_deg)
+                w.ctl.set_deadband(self._deadband(wname))
         elif name == "WB_TLM_HZ":
             self.telemetry.rate_hz = v
             self.telemetry.period = 1.0 / v if v > 0 else math.inf
         elif name == "WB_FS_TMO":
             self.fs_timeout = v
         elif name == "WB_SRV_HZ":
-            self.link.servo_rate_hz = v
-            if self.link.ready:
-                self.link.request_message_interval(MSG_SERVO_OUTPUT_RAW, v)
+            self.link.set_servo_rate(v)  # asks the FC at once (both messages on PX4)
         elif name.startswith("WB_BW_"):
             vals = dict(zip(BW_FIELDS, _bw_values(self.model), strict=True))
             vals[name[len("WB_BW_"):]] = v
@@ -306,19 +332,20 @@ class Bridge:
     def _setpoints(self, now: float) -> dict[str, float]:
         link = self.link
         silent = link.servo_time is None or now - link.servo_time > self.fs_timeout
-        if link.servo_time is None:  # start-up: nothing heard yet, neutral without an alarm
-            self.failsafe = True
-            return self.mixer.neutral()
-        if silent != self.failsafe:
-            self.failsafe = silent
-            if silent:
-                self.failsafe_entries += 1
-                self.telemetry.status(SEV_CRITICAL, "WB failsafe: no servo outputs, wings neutral", key="fs")
-            else:
-                self.telemetry.clear("fs")
-                self.telemetry.status(SEV_NOTICE, "WB servo outputs back, following FC")
+        if silent and not self.failsafe:
+            self.failsafe_entries += 1
+        if not silent and self.failsafe:
+            for key in ("fs-start", "fs"):
+                if self.telemetry.active(key):
+                    self.telemetry.clear(key)
+                    self.telemetry.status(SEV_NOTICE, "WB servo outputs back, following FC")
+        self.failsafe = silent
         neutral = self.mixer.neutral()
-        if silent:
+        if silent:  # keyed: sent once, as soon as the link knows the FC (retried until then)
+            if link.servo_time is None:
+                self.telemetry.status(SEV_WARNING, "WB failsafe: no servo outputs yet, wings neutral", key="fs-start")
+            else:
+                self.telemetry.status(SEV_CRITICAL, "WB failsafe: no servo outputs, wings neutral", key="fs")
             return neutral
         out = {}
         for name, sp in self.mixer.setpoints(link.servo_pwm).items():
@@ -330,14 +357,39 @@ class Bridge:
             out[name] = w.setpoint
         return out
 
+    def _fc_servo_sync(self) -> None:
+        """``fc:`` servo backend: follow the FC's system id and autopilot, hand it the FC's ACKs."""
+        servo, link = self.servo, self.link
+        if servo is None or not is_fc_backend(self.config.servo_backend):
+            return
+        if link.system_id is not None and getattr(servo, "target_system", None) != link.system_id:
+            servo.target_system = link.system_id
+        if self.config.servo_backend.strip().lower() == "fc:" and link.autopilot in ("ardupilot", "px4") \
+                and getattr(servo, "autopilot", None) != link.autopilot:
+            log.info("fc servo outputs: autopilot is %s", link.autopilot)
+            servo.autopilot = link.autopilot
+        handle_ack = getattr(servo, "handle_ack", None)
+        acks = getattr(link, "acks", None)
+        if handle_ack is None or acks is None:
+            return
+        for command in ACK_COMMANDS:
+            result = acks.pop(command, None)
+            if result is not None:
+                handle_ack(mavlink.MAVLink_command_ack_message(command, result))
+
     def tick(self) -> None:
         """One control cycle; catches and reports every subsystem's failure."""
         now = self.clock()
+        dt = self.dt if self._last_tick is None else min(max(now - self._last_tick, 0.0), DT_MAX_S)
+        self._last_tick = now
         self.cycles += 1
         try:
             self.params.poll(self.link.poll())
+            self._fc_servo_sync()
         except Exception:  # noqa: BLE001 - the link or a GCS request must not stop the loop
             log.exception("link/parameter handling failed")
+        if self._load_report and self.telemetry.status(SEV_WARNING, self._load_report, key="params-load"):
+            self._load_report = None
         try:
             setpoints = self._setpoints(now)
         except Exception:  # noqa: BLE001
@@ -351,7 +403,7 @@ class Bridge:
             row: dict[str, float | None] = {"setpoint": setpoints[name]}
             try:
                 measured = self._measure(name, w, now)
-                cmd = w.ctl.step(setpoints[name], measured, self.dt)
+                cmd = w.ctl.step(setpoints[name], measured, dt)
                 pulse = w.servo_cal.pulse_for_mm(cmd.u_cmd)
                 row.update(ff=cmd.ff, pi=cmd.pi, u=cmd.u_cmd, warp=measured, pulse=pulse)
                 modes.append(cmd.mode)
@@ -379,14 +431,14 @@ class Bridge:
             if self.link.airspeed is not None:
                 t.named_float("WB_aspd", self.link.airspeed)
             if self.link.servo_time is not None:
-                t.named_float("WB_lat", 1000.0 * (now - self.link.servo_time))
-            t.poll()
+                t.named_float("WB_lat", 1000.0 * max(0.0, self.clock() - self.link.servo_time))
+        except Exception:  # noqa: BLE001
+            log.exception("telemetry failed")
+        try:
+            self.telemetry.poll()  # every cycle: values held back by the rate limit go out when due
             if now >= self._next_error_poll and self._servo_down_since is None and self.servo is not None:
                 self._next_error_poll = now + ERROR_POLL_S
-                bits = self.servo.poll_errors()
-                if bits:
-                    names = ", ".join(self.servo.error_names(bits))
-                    t.status(SEV_ERROR, f"WB servo board error: {names}"[:100])
+                self._poll_servo_errors()
         except DeviceError as e:
             self._servo_lost(e)
         except Exception:  # noqa: BLE001
@@ -398,12 +450,28 @@ class Bridge:
                 log.exception("cycle log write failed; logging stopped")
                 self.log = None
 
+    def _poll_servo_errors(self) -> None:
+        """Board error bits -> one STATUSTEXT per episode (until a poll reads no error)."""
+        bits = self.servo.poll_errors()
+        if bits:
+            names = ", ".join(self.servo.error_names(bits))
+            self.telemetry.status(SEV_ERROR, f"WB servo board error: {names}"[:100], key="servo-err")
+        elif self.telemetry.active("servo-err"):
+            self.telemetry.clear("servo-err")
+            self.telemetry.status(SEV_NOTICE, "WB servo board error cleared")
+
+    def link_fd(self) -> int | None:
+        """File descriptor that becomes readable when the FC sends something (None if unknown)."""
+        fd = getattr(getattr(self.link, "mav", None), "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
     def close(self) -> None:
-        """Close the log, the parameter store, the devices we opened and the link."""
+        """Close the log, the parameter store (writes the last change), our devices and our link."""
+        owned = self._owns_devices
         for what, fn in (("log", self.log.close if self.log else None), ("params", self.store.close),
-                         ("servo", self.servo.close if self._owns_devices and self.servo else None),
-                         ("sensor", self.sensor.close if self._owns_devices and self.sensor else None),
-                         ("link", self.link.close)):
+                         ("servo", self.servo.close if owned and self.servo else None),
+                         ("sensor", self.sensor.close if owned and self.sensor else None),
+                         ("link", self.link.close if self._owns_link else None)):
             if fn is None:
                 continue
             try:
@@ -412,13 +480,45 @@ class Bridge:
                 log.exception("closing %s failed", what)
 
 
+def is_fc_backend(spec: str) -> bool:
+    """Whether a ``[servo] backend`` string drives the FC's own outputs (``fc:...``)."""
+    return spec.strip().lower().startswith("fc:")
+
+
+def servo_limits(config: Config) -> dict[int, tuple[float, float]]:
+    """Each wing's calibrated pulse range, keyed by its servo channel: the backend's safe range."""
+    return {w.servo_channel: (w.servo.pulse_min_us, w.servo.pulse_max_us) for w in config.wings.values()}
+
+
+def _waiter(bridge: Bridge, wake: bool) -> Callable[[float], None]:
+    """The loop timer's sleep: with ``wake``, run a cycle whenever the link becomes readable."""
+    if not wake:
+        return time.sleep
+
+    def wait(delay: float) -> None:
+        end = time.monotonic() + delay
+        while (left := end - time.monotonic()) > 0:
+            fd = bridge.link_fd()
+            if fd is None:
+                time.sleep(min(left, 0.005))  # link closed (reconnecting): check again soon
+                continue
+            try:
+                ready, _, _ = select.select([fd], [], [], left)
+            except (OSError, ValueError):  # closed under us: the next tick reconnects
+                time.sleep(min(left, 0.005))
+                continue
+            if ready:
+                bridge.tick()
+    return wait
+
+
 def run_bridge(config: Config, stop_event: threading.Event | None = None, duration: float | None = None,
-               *, servo: Any = None, sensor: Any = None) -> RunResult:
+               *, servo: Any = None, sensor: Any = None, link: Any = None) -> RunResult:
     """Run the bridge at the loop rate until ``stop_event`` is set or ``duration`` s have passed.
 
-    ``servo``/``sensor`` replace the configured backends (tests, SITL)."""
-    bridge = Bridge(config, servo=servo, sensor=sensor)
-    timer = LoopTimer(config.loop.rate_hz)
+    ``servo``/``sensor``/``link`` replace the configured ones (tests, SITL)."""
+    bridge = Bridge(config, servo=servo, sensor=sensor, link=link)
+    timer = LoopTimer(config.loop.rate_hz, sleep=_waiter(bridge, config.loop.wake_on_message))
     log.info("bridge running at %g Hz", config.loop.rate_hz)
     try:
         while not (stop_event is not None and stop_event.is_set()):

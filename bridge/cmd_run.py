@@ -14,7 +14,7 @@ import signal
 import threading
 from pathlib import Path
 
-from bridge.app import load_model, run_bridge
+from bridge.app import load_model, run_bridge, servo_limits
 from bridge.config import Config, backend_has_sensor, load_config
 from bridge.errors import UserError
 from bridge.link import FcLink
@@ -50,7 +50,7 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
     servo = sensor = None
     try:
         try:
-            servo = open_servo(config.servo_backend, mavlink_sender=link)
+            servo = open_servo(config.servo_backend, mavlink_sender=link, limits=servo_limits(config))
             print(f"servo: {config.servo_backend}: opened")
         except (ValueError, DeviceError) as e:
             ok = False

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,9 @@ class LinkConfig:
     servo_rate_hz: float = 50.0  # requested SERVO_OUTPUT_RAW / ACTUATOR_OUTPUT_STATUS rate
     rerequest_s: float = 5.0  # re-send the message-interval request this often while silent
     gcs_sysid_allow: tuple[int, ...] = ()  # ground stations allowed to set parameters; () = any
+    signing_key_file: Path | None = None  # MAVLink 2 signing key (bridge.signing); None = no signing
+    signing_accept_unsigned_from_fc: bool = True  # with signing: the FC's own stream may be unsigned
+    pwm_jitter_us: float = 2.0  # +- jitter of the FC's servo outputs; sets each wing's setpoint play
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,7 @@ class LoopConfig:
     failsafe_timeout_s: float = 0.5  # no servo message for this long -> neutral warp
     sensor_frozen_s: float = 1.0  # identical raw reading this long while the command moves -> sensor bad
     log: Path | None = None  # cycle log CSV; may contain {time}; None = no log
+    wake_on_message: bool = True  # run a cycle as soon as the FC's message arrives (plus the fixed ticks)
 
 
 @dataclass(frozen=True)
@@ -68,7 +72,8 @@ class ControlConfig:
     i_max_mm: float = 2.0  # limit of the PI integrator in ff+pi (trim authority), mm
     u_min_mm: float | None = None  # tendon limits; None = from the servo calibration
     u_max_mm: float | None = None
-    deadband_deg: float = 0.08  # half-width of the setpoint play that feeds the model
+    deadband_deg: float = 0.0  # half-width of the setpoint play that feeds the model; derived from
+    # [link] pwm_jitter_us through the wing's deg-per-us scaling (not a key of its own)
 
 
 @dataclass(frozen=True)
@@ -192,7 +197,7 @@ def _path(sec: _Section, key: str, base: Path, default: Any = _REQUIRED) -> Path
     return p if p.is_absolute() else base / p
 
 
-def _wing(root: _Section, name: str) -> WingConfig:
+def _wing(root: _Section, name: str, pwm_jitter_us: float = 2.0) -> WingConfig:
     s = root.table(name)
     if not s.data:
         raise UserError(f"{root.origin}: [wing.{name}] missing (both wings are required)")
@@ -244,6 +249,8 @@ def _wing(root: _Section, name: str) -> WingConfig:
     se.done()
 
     c = s.table("control")
+    if "deadband_deg" in c.data:
+        raise c.fail("deadband_deg", "no longer a key: the setpoint play is derived from [link] pwm_jitter_us")
     lo_u, hi_u = servo.mm_limits
     ctl = ControlConfig(
         mode=c.text("mode", "ff+pi", choices=MODES),
@@ -252,7 +259,6 @@ def _wing(root: _Section, name: str) -> WingConfig:
         i_max_mm=c.num("i_max_mm", 2.0, lo=0.0, hi=100.0),
         u_min_mm=c.num("u_min_mm", None, lo=-100.0, hi=100.0),
         u_max_mm=c.num("u_max_mm", None, lo=-100.0, hi=100.0),
-        deadband_deg=c.num("deadband_deg", 0.08, lo=0.0, hi=2.0),
     )
     umin = lo_u if ctl.u_min_mm is None else ctl.u_min_mm
     umax = hi_u if ctl.u_max_mm is None else ctl.u_max_mm
@@ -260,6 +266,11 @@ def _wing(root: _Section, name: str) -> WingConfig:
         raise c.fail("u_max_mm", f"must be greater than u_min_mm ({umin:g})")
     c.done()
     s.done()
+    from bridge.mixer import WingMix  # here: the mixer imports this module
+
+    mix = WingMix(w["source_channel"], w["reverse"], w["pwm_min"], w["pwm_trim"], w["pwm_max"],
+                  w["max_warp_deg"], w["bias_deg"])
+    ctl = replace(ctl, deadband_deg=mix.jitter_deadband(pwm_jitter_us))
     return WingConfig(servo=servo, sensor=SensorCal(counts, deg), control=ctl, **w)
 
 
@@ -278,6 +289,9 @@ def parse_config(data: dict, base: Path, origin: str = "config") -> Config:
         servo_rate_hz=link.num("servo_rate_hz", 50.0, lo=0.0, hi=1000.0, lo_open=True),
         rerequest_s=link.num("rerequest_s", 5.0, lo=0.0, hi=3600.0, lo_open=True),
         gcs_sysid_allow=link.numbers("gcs_sysid_allow", (), integer=True),
+        signing_key_file=_path(link, "signing_key_file", base, None),
+        signing_accept_unsigned_from_fc=link.flag("signing_accept_unsigned_from_fc", True),
+        pwm_jitter_us=link.num("pwm_jitter_us", 2.0, lo=0.0, hi=50.0),
     )
     if any(not 1 <= x <= 255 for x in link_cfg.gcs_sysid_allow):
         raise link.fail("gcs_sysid_allow", "system ids must be in [1, 255]")
@@ -289,6 +303,7 @@ def parse_config(data: dict, base: Path, origin: str = "config") -> Config:
         failsafe_timeout_s=loop.num("failsafe_timeout_s", 0.5, lo=0.02, hi=60.0),
         sensor_frozen_s=loop.num("sensor_frozen_s", 1.0, lo=0.05, hi=60.0),
         log=_path(loop, "log", base, None),
+        wake_on_message=loop.flag("wake_on_message", True),
     )
     loop.done()
 
@@ -314,7 +329,7 @@ def parse_config(data: dict, base: Path, origin: str = "config") -> Config:
 
     root.used.add("wing")
     wing_root = _Section(origin, "wing", data.get("wing", {}))
-    wings = {name: _wing(wing_root, name) for name in WINGS}
+    wings = {name: _wing(wing_root, name, link_cfg.pwm_jitter_us) for name in WINGS}
     wing_root.done()
     root.done()
 

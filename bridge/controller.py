@@ -11,7 +11,10 @@ Modes (``MODES``; ``WB_MODE`` 0..3 in this order):
 Units: e in deg, Kp in mm per deg, Ki in mm per deg*s (the paper's Kp = 7, Ki = 1), u in mm.
 The model and the error see the setpoint through a play (backlash) of half-width
 ``deadband`` deg: FC PWM jitter of a few us would otherwise feed the hysteresis
-model tiny reversals, each one a jump of the loop width. Anti-windup: the integrator
+model tiny reversals, each one a jump of the loop width. The bridge sizes it from
+the PWM resolution (``Mixer`` ``jitter_deadband``: +-jitter us times the wing's
+deg per us), so the jitter never reverses the model but every real move passes,
+with a lag of at most that half-width. Anti-windup: the integrator
 does not integrate while the command is saturated in the error's direction, and is
 clamped. A missing measurement (None or NaN) drops pi/ff+pi to ``ff`` with the
 integrator held. Any change (mode, gains, model, sensor fallback) is bumpless: a
@@ -66,7 +69,7 @@ class WingController:
 
     def __init__(self, params: BoucWenParams, *, mode: str = "ff+pi", kp: float = 7.0, ki: float = 1.0,
                  i_max: float = 2.0, u_min: float = -5.0, u_max: float = 15.0, w_max: float = 8.0,
-                 deadband: float = 0.08, transfer_s: float = 0.5, w0: float = 0.0) -> None:
+                 deadband: float = 0.0, transfer_s: float = 0.5, w0: float = 0.0) -> None:
         self.set_mode(mode)
         self.kp, self.ki, self.i_max = float(kp), float(ki), float(i_max)
         self.set_limits(u_min, u_max)
@@ -96,6 +99,12 @@ class WingController:
         self.ki = self.ki if ki is None else float(ki)
         self.i_max = self.i_max if i_max is None else float(i_max)
         self._retune = True
+
+    def set_deadband(self, deadband: float) -> None:
+        """Half-width (deg) of the setpoint play; the played setpoint is kept where it is."""
+        if not deadband >= 0:
+            raise ValueError("deadband must be >= 0")
+        self.deadband = float(deadband)
 
     def set_limits(self, u_min: float, u_max: float) -> None:
         if not u_min < u_max:

@@ -65,6 +65,17 @@ class WingMix:
         return min(self.max_warp_deg, max(0.0, w))
 
     @property
+    def deg_per_us(self) -> float:
+        """Steepest warp change per microsecond of PWM (deg/us), above or below trim."""
+        bias = min(max(self.bias_deg, 0.0), self.max_warp_deg)
+        return max((self.max_warp_deg - bias) / (self.pwm_max - self.pwm_trim),
+                   bias / (self.pwm_trim - self.pwm_min))
+
+    def jitter_deadband(self, jitter_us: float) -> float:
+        """Half-width (deg) of the setpoint play that absorbs +-``jitter_us`` of PWM jitter."""
+        return max(0.0, float(jitter_us)) * self.deg_per_us
+
+    @property
     def neutral_deg(self) -> float:
         """Warp held at neutral aileron and in failsafe."""
         return self.warp(0.0)

@@ -3,7 +3,9 @@
 ``Telemetry(link, rate_hz)`` sends each named value at most ``rate_hz`` times a
 second (the latest value wins; call ``poll()`` each cycle to flush values held
 back), and STATUSTEXT without storms: a keyed status goes out once until
-``clear(key)`` (and a key that flaps is re-sent at most every ``key_holdoff_s``),
+``clear(key)`` (a key counts as sent only when the link took the message, so a
+condition raised before the FC is known is reported as soon as it is; a key that
+flaps is re-sent at most every ``key_holdoff_s``),
 an unkeyed one is rate limited (burst of 5, then one a second).
 
 Names sent (at most 10 characters; shown by MAVProxy, Mission Planner's Quick tab
@@ -106,19 +108,23 @@ class Telemetry:
     # ------------------------------------------------------------------ status texts
 
     def status(self, severity: int, text: str, key: str | None = None) -> bool:
-        """Send STATUSTEXT; with ``key`` only once until ``clear(key)``. True if sent."""
+        """Send STATUSTEXT; with ``key`` only once until ``clear(key)`` (a failed send is retried
+        by the next call with that key). True if sent."""
         now = self.clock()
         if key is not None:
             if key in self._active_keys:
                 return False
-            self._active_keys.add(key)
             last = self._key_sent.get(key)
             if last is not None and now - last < self.key_holdoff_s:
+                self._active_keys.add(key)
                 log.debug("status %r flapping; not re-sent", key)
                 return False
+            if not self.link.send_statustext(severity, text):
+                return False  # not sent (link not ready): the next call tries again
+            self._active_keys.add(key)
             self._key_sent[key] = now
             log.info("status [%s]: %s", key, text)
-            return bool(self.link.send_statustext(severity, text))
+            return True
         self._tokens = min(_STATUS_BURST, self._tokens + (now - self._token_time) * _STATUS_PER_S)
         self._token_time = now
         if self._tokens < 1.0:

@@ -101,3 +101,15 @@ def test_unreadable_and_invalid_toml(tmp_path):
         load_config(tmp_path / "nope.toml")
     with pytest.raises(UserError, match="not valid TOML"):
         load_config(write(tmp_path, "[link\n"))
+
+
+def test_px4_example_is_valid_and_the_play_comes_from_the_pwm_jitter(tmp_path):
+    px4 = EXAMPLE.with_name("warpbridge.px4.example.toml")
+    cfg = load_config(write(tmp_path, px4.read_text()))
+    assert cfg.right.source_channel == 2 and cfg.link.pwm_jitter_us == 2.0
+    # +-2 us through the steepest side of the mix: (8 - 2) deg over 400 us above trim
+    assert cfg.left.control.deadband_deg == pytest.approx(2.0 * 6.0 / 400.0)
+    cfg = load_config(write(tmp_path, example_with("pwm_jitter_us = 2", "pwm_jitter_us = 0")))
+    assert cfg.left.control.deadband_deg == 0.0
+    with pytest.raises(UserError, match="pwm_jitter_us"):
+        load_config(write(tmp_path, example_with("i_max_mm = 2.0", "i_max_mm = 2.0\ndeadband_deg = 0.08")))

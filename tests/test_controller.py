@@ -110,28 +110,56 @@ def test_mode_switch_is_bumpless(old, new):
     assert Flags.TRANSFER not in last.flags
 
 
-def test_ff_output_does_not_chatter_on_pwm_jitter_but_follows_a_step():
-    mix = WingMix(source_channel=1, reverse=False, pwm_min=1100, pwm_trim=1500, pwm_max=1900,
-                  max_warp_deg=10.0, bias_deg=2.0)
+def jitter_run(mode: str, deadband: float, mix: WingMix, jitter_us: int = 2) -> tuple[list[float], WingController,
+                                                                                   ServoPlant]:
+    """Hold a constant roll with +-``jitter_us`` of PWM jitter; the command over the last 500 cycles."""
     rng = np.random.default_rng(1)
-    for mode in ("ff", "ff+pi"):
-        w0 = mix.warp(mix.normalise(1700))  # start settled at the constant roll
-        c = WingController(P, mode=mode, w0=w0)
-        plant = ServoPlant(w0, Stepper(P, w0=w0).u)
-        u = []
-        for k in range(1000):
-            pwm = 1700 + rng.integers(-2, 3)  # constant roll, +-2 us of jitter
-            cmd = c.step(mix.warp(mix.normalise(pwm)), plant.w, DT)
-            plant.step(cmd.u_cmd)
-            if k >= 500:
-                u.append(cmd.u_cmd)
-        # mm: a tiny fraction of the ~1.5 mm hysteresis loop, and no sample-to-sample chatter
-        assert max(u) - min(u) < 0.02, mode
-        assert np.max(np.abs(np.diff(u))) < 0.001, mode
-        for _ in range(100):  # a real step of 20 us (0.4 deg) still moves it
-            cmd = c.step(mix.warp(mix.normalise(1720)), plant.w, DT)
-            plant.step(cmd.u_cmd)
-        assert cmd.u_cmd - float(np.mean(u)) > 0.1, mode
+    w0 = mix.warp(mix.normalise(1700))  # start settled at the constant roll
+    c = WingController(P, mode=mode, w0=w0, deadband=deadband)
+    plant = ServoPlant(w0, Stepper(P, w0=w0).u)
+    u = []
+    for k in range(1000):
+        pwm = 1700 + rng.integers(-jitter_us, jitter_us + 1)
+        cmd = c.step(mix.warp(mix.normalise(pwm)), plant.w, DT)
+        plant.step(cmd.u_cmd)
+        if k >= 500:
+            u.append(cmd.u_cmd)
+    return u, c, plant
+
+
+MIX = WingMix(source_channel=1, reverse=False, pwm_min=1100, pwm_trim=1500, pwm_max=1900,
+              max_warp_deg=10.0, bias_deg=2.0)
+
+
+@pytest.mark.parametrize("mode", ["ff", "ff+pi"])
+def test_jitter_deadband_from_pwm_resolution_stops_chatter_but_passes_a_step(mode):
+    deadband = MIX.jitter_deadband(2.0)  # +-2 us through the wing's 0.02 deg/us
+    assert deadband == pytest.approx(2.0 * 8.0 / 400.0)
+    u, c, plant = jitter_run(mode, deadband, MIX)
+    # mm: a tiny fraction of the ~1.5 mm hysteresis loop, and no sample-to-sample chatter
+    assert max(u) - min(u) < 0.02
+    assert np.max(np.abs(np.diff(u))) < 0.001
+    for _ in range(100):  # a real move of 5 us (0.1 deg, just over the play) still moves it
+        cmd = c.step(MIX.warp(MIX.normalise(1705)), plant.w, DT)
+        plant.step(cmd.u_cmd)
+    assert cmd.u_cmd - float(np.mean(u)) > 0.02
+
+
+@pytest.mark.parametrize("mode", ["ff", "ff+pi"])
+def test_without_the_deadband_jitter_makes_the_model_chatter(mode):
+    u, _, _ = jitter_run(mode, 0.0, MIX)
+    assert max(u) - min(u) > 0.1  # each tiny reversal is a jump across the hysteresis loop
+    assert np.max(np.abs(np.diff(u))) > 0.05
+
+
+def test_deadband_lags_a_ramp_by_at_most_its_half_width():
+    c = WingController(P, mode="ff", deadband=0.04)
+    ref = Stepper(P)
+    for w in np.linspace(0.0, 6.0, 300):
+        cmd = c.step(float(w), None, DT)
+    assert cmd.u_cmd == pytest.approx(ref.inverse_step(6.0 - 0.04), abs=1e-9)
+    with pytest.raises(ValueError):
+        c.set_deadband(-1.0)
 
 
 def test_missing_sensor_falls_back_to_ff_with_integrator_held():
