@@ -18,6 +18,7 @@ from bridge.app import load_model, run_bridge, servo_limits
 from bridge.config import Config, backend_has_sensor, load_config
 from bridge.errors import UserError
 from bridge.link import FcLink
+from bridge.signing import policy_from_config
 from hw import DeviceError, open_sensor, open_servo
 
 log = logging.getLogger(__name__)
@@ -46,7 +47,7 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
               f"sensor channel {w.sensor_channel if w.sensor_channel is not None else '-'}, "
               f"mode {w.control.mode}")
     link = FcLink(config.link.connection, servo_rate_hz=config.link.servo_rate_hz,
-                  source_system=config.link.source_system)
+                  source_system=config.link.source_system, signing=policy_from_config(config.link))
     servo = sensor = None
     try:
         try:

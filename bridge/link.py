@@ -20,6 +20,18 @@ message and ``port`` counts sets of 16 (ArduPilot sends outputs 17-32 as port 1,
 PX4 its second output group as port 1). ACTUATOR_OUTPUT_STATUS ``active`` is a
 bitmask in the message definition but PX4 fills it with the number of outputs;
 ``actuator_active="auto"`` reads it as a count from PX4 and as a mask otherwise.
+
+Hostile input: bytes that do not parse are counted (``bad_data``) and never
+close the link (only an I/O error does); pymavlink's per-sender bookkeeping
+(which grows with every new message type, instance and sender a fuzzer invents)
+is replaced by a constant-size one. On UDP each datagram is parsed on its own (a
+MAVLink frame never spans datagrams), so a truncated frame cannot swallow the
+valid ones that follow, and the set of UDP peers pymavlink answers is kept to
+the few most recent. With ``signing`` (``bridge.signing``) every
+frame sent is signed and unsigned or wrongly signed frames are dropped and
+counted (``unsigned_refused``, ``bad_signature``, ``refused``), except the FC's
+own stream when the policy accepts it unsigned; dropped frames never reach the
+parameter server.
 """
 
 from __future__ import annotations
@@ -32,6 +44,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.mavlink_env import mavlink, mavutil
+from bridge.signing import Signer, SigningPolicy
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +62,16 @@ STATUSTEXT_MAX_CHUNKS = 4
 FC_TIMEOUT_S = 3.0  # FC heartbeat older than this: FC lost
 _MAX_MESSAGES_PER_POLL = 500
 _BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
+_MAX_TYPE_KEYS = 64  # counters.by_type / refused: further types are counted under "OTHER"
+_MAX_WARN_KEYS = 64
+_MAX_UDP_PEERS = 4  # udpin answers every peer it heard: keep the most recent few
+_UDP_PEER_TIMEOUT_S = 10.0
+REFUSAL_TEXT_S = 10.0  # at most one STATUSTEXT about refused (unsigned) frames per this many seconds
+IFLAG_SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+# what the FC itself sends us; with signing these may stay unsigned (policy) when from the FC
+FC_STREAM_TYPES = frozenset(
+    {"HEARTBEAT", "SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS", "VFR_HUD", "COMMAND_ACK"}
+)
 
 _AUTOPILOTS = {
     mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot",
@@ -89,6 +112,7 @@ class LinkCounters:
     """Message counters, for the log and for tests."""
 
     received: int = 0
+    datagrams: int = 0  # UDP datagrams read
     bad_data: int = 0  # bytes that did not parse as MAVLink
     ignored: int = 0  # valid MAVLink from a sender we do not listen to
     invalid_values: int = 0  # absurd servo PWM, NaN airspeed, empty masks ...
@@ -99,7 +123,23 @@ class LinkCounters:
     send_errors: int = 0
     stream_requests: int = 0
     reconnects: int = 0
+    parse_errors: int = 0  # the parser raised (never closes the link)
+    unsigned_refused: int = 0  # signing on: unsigned frames dropped
+    bad_signature: int = 0  # signing on: frames with a wrong, replayed or stale signature dropped
     by_type: dict[str, int] = field(default_factory=dict)
+    refused: dict[str, int] = field(default_factory=dict)  # dropped by the signing policy, per type
+
+
+def _count(table: dict[str, int], key: str) -> None:
+    if key not in table and len(table) >= _MAX_TYPE_KEYS:
+        key = "OTHER"
+    table[key] = table.get(key, 0) + 1
+
+
+def _post_message(msg: Any) -> None:
+    """Constant-memory stand-in for ``mavfile.post_message`` (we keep our own state)."""
+    msg._posted = True
+    msg._timestamp = time.time()
 
 
 class FcLink:
@@ -117,6 +157,7 @@ class FcLink:
         heartbeat_hz: float = 1.0,
         baud: int = 921600,
         actuator_active: str = "auto",
+        signing: SigningPolicy | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if actuator_active not in ("auto", "mask", "count"):
@@ -134,6 +175,8 @@ class FcLink:
         self.component_id = int(component_id)
         self.heartbeat_period = 1.0 / heartbeat_hz if heartbeat_hz > 0 else math.inf
         self.actuator_active = actuator_active
+        self.signing = signing
+        self._signer = Signer(signing.key) if signing is not None else None
         self.clock = clock
 
         self.mav: Any = None  # the pymavlink connection (mavutil.mavfile) while open
@@ -158,6 +201,8 @@ class FcLink:
         self._stream_seen: dict[str, float] = {}  # stream name -> time last received
         self._statustext_id = 0
         self._warned: set[str] = set()
+        self._refusal_text_at = -math.inf
+        self._refusals_logged: set[tuple[str, str, int, int]] = set()
 
     # ------------------------------------------------------------------ connection
 
@@ -208,6 +253,9 @@ class FcLink:
         # pymavlink's TCP link prints and retries on EOF/reset; we reconnect ourselves.
         conn.handle_eof = disconnected
         conn.handle_disconnect = disconnected
+        conn.post_message = _post_message
+        if self._signer is not None:
+            self._signer.install(conn)
         port = getattr(conn, "port", None)
         if hasattr(port, "write_timeout"):
             try:
@@ -260,26 +308,77 @@ class FcLink:
         if self.mav is None:
             if now < self._reconnect_at or not self.open():
                 return []
+        if self._signer is not None and not self._signer.installed_on(self.mav):
+            self._signer.install(self.mav)  # pymavlink replaced its protocol object
         out: list[Any] = []
-        for _ in range(_MAX_MESSAGES_PER_POLL):
+        n = 0
+        while n < _MAX_MESSAGES_PER_POLL:
             try:
-                msg = self.mav.recv_msg()
-            except Exception as e:  # noqa: BLE001 - unplugged serial, reset socket ...
+                batch = self._receive()
+            except OSError as e:  # unplugged serial (SerialException), reset socket, peer closed
                 self._lost(f"{type(e).__name__}: {e}")
                 return out
-            if msg is None:
+            except Exception as e:  # noqa: BLE001 - the parser choked on hostile bytes: drop them
+                self.counters.parse_errors += 1
+                self._reset_parser()
+                self._warn_once(f"parse:{type(e).__name__}", f"MAVLink parser error ({e}); input dropped")
+                n += 1
+                continue
+            if not batch:
                 break
-            try:
-                if self._handle(msg, self.clock()):
-                    out.append(msg)
-            except Exception:  # noqa: BLE001 - a message we failed to understand
-                self.counters.invalid_values += 1
-                log.exception("could not handle %s", msg.get_type())
+            n += len(batch)
+            for msg in batch:
+                try:
+                    if self._handle(msg, self.clock()):
+                        out.append(msg)
+                except Exception:  # noqa: BLE001 - a message we failed to understand
+                    self.counters.invalid_values += 1
+                    log.exception("could not handle %s", msg.get_type())
         if self.mav is not None and getattr(self.mav, "portdead", False):
             self._lost("write failed")
             return out
         self._periodic(self.clock())
         return out
+
+    def _receive(self) -> list[Any]:
+        """What is pending now: one datagram's messages on UDP, else at most one message."""
+        conn = self.mav
+        if isinstance(conn, mavutil.mavudp):
+            data = conn.recv()
+            if not data:
+                return []
+            self.counters.datagrams += 1
+            if conn.udp_server:
+                self._prune_udp_peers(conn)
+            try:
+                msgs = conn.mav.parse_buffer(data) or []
+            finally:
+                self._reset_parser()  # an incomplete frame at the end of a datagram is garbage
+            for m in msgs:
+                _post_message(m)
+            return msgs
+        msg = conn.recv_msg()
+        return [] if msg is None else [msg]
+
+    @staticmethod
+    def _prune_udp_peers(conn: Any) -> None:
+        conn.timeout = _UDP_PEER_TIMEOUT_S
+        clients = getattr(conn, "clients", None)
+        alive = getattr(conn, "clients_last_alive", None)
+        if clients is None or alive is None or len(clients) <= _MAX_UDP_PEERS:
+            return
+        keep = sorted(clients, key=lambda a: alive.get(a, 0.0))[-_MAX_UDP_PEERS:]
+        for addr in list(clients):
+            if addr not in keep:
+                clients.discard(addr)
+                alive.pop(addr, None)
+
+    def _reset_parser(self) -> None:
+        mav = getattr(self.mav, "mav", None)
+        if mav is not None:
+            mav.buf = bytearray()
+            mav.buf_index = 0
+            mav.expected_length = mavlink.HEADER_LEN_V1 + 2
 
     def _handle(self, msg: Any, now: float) -> bool:
         mtype = msg.get_type()
@@ -288,8 +387,14 @@ class FcLink:
             c.bad_data += 1
             return False
         c.received += 1
-        c.by_type[mtype] = c.by_type.get(mtype, 0) + 1
         src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+        if msg.get_msgId() < 0 or mtype.startswith("UNKNOWN"):
+            mtype = "UNKNOWN"
+        _count(c.by_type, mtype)
+        if self._signer is not None and not getattr(msg, "_signed", False):
+            if not self._unsigned_ok(mtype, src_sys, src_comp):
+                self._refuse_unsigned(msg, mtype, src_sys, src_comp, now)
+                return False
         if mtype == "HEARTBEAT":
             if not self._is_fc_heartbeat(msg):
                 return False
@@ -323,6 +428,32 @@ class FcLink:
             self._command_ack(msg)
             return False
         return True
+
+    def _unsigned_ok(self, mtype: str, src_sys: int, src_comp: int) -> bool:
+        """Signing on: an unsigned frame passes only if it is the FC's stream and the policy allows it."""
+        if self.signing is None or not self.signing.accept_unsigned_from_fc:
+            return False
+        if mtype not in FC_STREAM_TYPES or src_comp != FC_COMPONENT_ID:
+            return False
+        return src_sys == (self.system_id if self.system_id is not None else src_sys)
+
+    def _refuse_unsigned(self, msg: Any, mtype: str, src_sys: int, src_comp: int, now: float) -> None:
+        c = self.counters
+        header = getattr(msg, "_header", None)
+        signed = header is not None and header.incompat_flags & IFLAG_SIGNED
+        what = "badly signed" if signed else "unsigned"
+        if signed:
+            c.bad_signature += 1
+        else:
+            c.unsigned_refused += 1
+        _count(c.refused, mtype)
+        key = (what, mtype, src_sys, src_comp)
+        if key not in self._refusals_logged and len(self._refusals_logged) < _MAX_WARN_KEYS:
+            self._refusals_logged.add(key)
+            log.warning("refused %s %s from %d/%d", what, mtype, src_sys, src_comp)
+        if now - self._refusal_text_at >= REFUSAL_TEXT_S and mtype not in FC_STREAM_TYPES:
+            self._refusal_text_at = now
+            self.send_statustext(mavlink.MAV_SEVERITY_WARNING, f"WB refused {what} {mtype} from {src_sys}")
 
     def _is_fc_heartbeat(self, msg: Any) -> bool:
         if msg.get_srcComponent() != FC_COMPONENT_ID:

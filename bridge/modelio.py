@@ -28,9 +28,11 @@ def load_model(path: str | os.PathLike) -> ModelFile:
         d = json.loads(text)
     except json.JSONDecodeError as e:
         raise UserError(f"{p}: not valid JSON (line {e.lineno}: {e.msg})") from None
+    except RecursionError:
+        raise UserError(f"{p}: JSON nested too deeply to be a model file") from None
     try:
         return ModelFile.from_dict(d)
-    except ValueError as e:
+    except (ValueError, TypeError, RecursionError) as e:
         raise UserError(f"{p}: {e}") from None
 
 

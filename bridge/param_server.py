@@ -6,13 +6,17 @@ PARAM_SET; every answer is a PARAM_VALUE (MAV_PARAM_TYPE_REAL32 for all values,
 integers included, with param_count and param_index), broadcast as the protocol
 asks. Addressing follows PX4's mavlink_parameters and ArduPilot's router: a
 request counts when target_system is ours (or 0 for list/read) and
-target_component is 191 or 0 (MAV_COMP_ID_ALL). A set that is refused (unknown
-name, NaN, out of range, not a whole number, sender not in the allow-list) is
-answered with the unchanged value plus a STATUSTEXT saying why, so a GCS does not
-retry forever; a broadcast set of a name we do not have is left to the other
-components. Replies go out at most ``send_rate_hz`` per second (token bucket) so
-a slow telemetry radio is not flooded; single reads and set echoes go before the
-rest of a list.
+target_component is 191 or 0 (MAV_COMP_ID_ALL). A set that is refused (NaN,
+inf, out of range, not a whole number, a param_type other than REAL32, sender not
+in the allow-list) is answered with the unchanged value plus a STATUSTEXT saying
+why, so a GCS does not retry forever; a set of a name we do not have gets the
+STATUSTEXT only (as PX4 does; there is no index to answer with), and a broadcast
+one nothing, as it is the other components' to answer. Sets addressed to another
+system or component are not ours: no answer. Replies go out at most
+``send_rate_hz`` per second (token bucket) so a slow telemetry radio is not
+flooded; single reads and set echoes go before the rest of a list. Refusal
+STATUSTEXTs are limited too (burst 5, then one a second): a flood of bad sets is
+counted (``refused``, ``texts_dropped``), not echoed onto the radio.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from bridge.params import ParamError, ParamStore
 log = logging.getLogger(__name__)
 
 _BURST = 10  # PARAM_VALUE messages that may go out back to back
+_TEXT_BURST = 5.0  # refusal STATUSTEXTs back to back, then _TEXT_PER_S
+_TEXT_PER_S = 1.0
 
 
 def param_name(raw: Any) -> str:
@@ -37,6 +43,11 @@ def param_name(raw: Any) -> str:
     if isinstance(raw, bytes | bytearray):
         raw = bytes(raw).decode("ascii", "replace")
     return str(raw).split("\x00", 1)[0]
+
+
+def printable(name: str) -> str:
+    """``name`` fit for a log line or STATUSTEXT: printable ASCII only, at most 16 characters."""
+    return "".join(c if " " <= c <= "~" else "?" for c in name[:16])
 
 
 class ParamServer:
@@ -60,7 +71,10 @@ class ParamServer:
         self._list: deque[int] = deque()  # pending PARAM_REQUEST_LIST answer
         self._tokens = float(_BURST)
         self._last = clock()
+        self._text_tokens = _TEXT_BURST
+        self._text_last = self._last
         self.refused = 0
+        self.texts_dropped = 0
 
     # ------------------------------------------------------------------ entry points
 
@@ -123,12 +137,17 @@ class ParamServer:
         broadcast = msg.target_component == 0
         if name not in self.store:
             if not broadcast:
-                self._refuse(f"unknown parameter {name}")
+                self._refuse(f"unknown parameter {printable(name)}")
             return
         index = self.store.index(name)
         sender = msg.get_srcSystem()
         if self.allowed_gcs is not None and sender not in self.allowed_gcs:
             self._refuse(f"{name}: sysid {sender} may not set params")
+            self._queue_urgent(index)
+            return
+        if msg.param_type != mavlink.MAV_PARAM_TYPE_REAL32:
+            # the value field of another type may be byte-wise encoded (PX4 style): never guess
+            self._refuse(f"{name}: param_type {msg.param_type} refused, send REAL32")
             self._queue_urgent(index)
             return
         value = msg.param_value
@@ -142,6 +161,14 @@ class ParamServer:
 
     def _refuse(self, reason: str) -> None:
         self.refused += 1
+        now = self.clock()
+        self._text_tokens = min(_TEXT_BURST, self._text_tokens + (now - self._text_last) * _TEXT_PER_S)
+        self._text_last = now
+        if self._text_tokens < 1.0:
+            self.texts_dropped += 1
+            log.debug("parameter set refused (not reported, rate limit): %s", reason)
+            return
+        self._text_tokens -= 1.0
         log.warning("parameter set refused: %s", reason)
         self.link.send_statustext(mavlink.MAV_SEVERITY_WARNING, f"param {reason}")
 

@@ -69,7 +69,10 @@ class ParamSpec:
         """Return ``value`` as stored (clamped onto a bound within float32 error) or raise ParamError."""
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ParamError(f"{self.name}: not a number: {value!r}")
-        v = float(value)
+        try:
+            v = float(value)
+        except OverflowError:
+            raise ParamError(f"{self.name}: {value!r:.20} is not a finite number") from None
         if not math.isfinite(v):
             raise ParamError(f"{self.name}: {v} is not a finite number")
         if v < self.min - _F32_TOL * max(1.0, abs(self.min)):
@@ -182,11 +185,15 @@ class ParamStore:
             return None
         except OSError as e:
             return f"params: cannot read {self.path.name} ({e.strerror}); defaults used"
+        except ValueError:  # not UTF-8: corrupt
+            text = None
         try:
+            if text is None:
+                raise ValueError("not UTF-8 text")
             doc = json.loads(text)
             if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("params"), dict):
                 raise ValueError("not a warpbridge parameter file")
-        except ValueError as e:
+        except (ValueError, RecursionError) as e:
             kept = self._move_aside()
             log.error("parameter file %s is corrupt (%s); defaults loaded, kept as %s", self.path, e, kept)
             return f"params file corrupt: defaults loaded, kept as {kept}"

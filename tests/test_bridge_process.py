@@ -342,8 +342,10 @@ def test_parameters_list_set_refuse_and_persist_across_a_restart(make_rig):
     rig.start()
     gcs = rig.gcs
     gcs.param_list()
-    assert wait_for(lambda: len(gcs.params) >= 21, 10.0), sorted(gcs.params)
+    assert wait_for(lambda: gcs.param_msgs and len(gcs.params) == gcs.param_msgs[-1].param_count, 10.0), \
+        sorted(gcs.params)
     count = gcs.param_msgs[-1].param_count
+    assert count >= 21
     assert count == len(gcs.params)
     assert {m.param_index for m in gcs.param_msgs} == set(range(count))
     assert gcs.params["WB_KP"] == pytest.approx(7.0) and gcs.params["WB_MODE"] == 3.0
