@@ -5,12 +5,18 @@ scenario's aileron PWM over MAVLink UDP to the bridge, with a ground-station
 port), the virtual servo board (a Pololu Maestro emulator on a pty, in this
 process, whose servo channels drive the two simulated wings and whose analog
 inputs return their flex sensors), and the bridge itself (a subprocess,
-``warpbridge run --config <generated toml>``). The scenario runs in real time
-for ``--duration`` seconds of control; then the children are stopped, the RMS
-tracking error per wing is computed from the bridge's cycle log and the wings'
-true warp (row i of the log is the bridge's i-th read of the left sensor), the
-same scenario is flown in lock-step for comparison, and the table and a plot
-are written. Everything (config, roll file, logs, PNG, summary) stays in
+``warpbridge run --config <generated toml>``). The bridge starts first (in
+failsafe, wings neutral); then the mock, whose roll clock starts with it: a
+1 s neutral hold, then the scenario for ``--duration`` s, so the bridge starts
+following the FC without a step. Then the children are stopped and each
+cycle-log row is joined to the sensor read the bridge made in that cycle (by
+time and by the counts it logged), giving the wing's true warp then; the log
+is put on the scenario's clock by matching its setpoints to the reference.
+The same stretch of the scenario is flown in lock-step (``sitl.lockstep``:
+the bridge's own cycle on a simulated clock) at the real-time run's cycle
+times, sensor-read and servo-write instants, and once more at the nominal
+schedule ("ideal timing"); RMS of setpoint - true warp over the same cycles
+is compared, and the table and a plot are written. Everything (config, roll file, logs, PNG, summary) stays in
 ``--out``. ``--lockstep`` instead prints the lock-step comparison table of all
 controller modes, calm and in gusts (seconds, no sockets).
 
@@ -35,18 +41,30 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import fields
+import tomllib
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
 
+from bridge.config import parse_config
 from bridge.controller import MODES
 from bridge.errors import UserError
 from model.boucwen import BoucWenParams
 from model.effects import EFFECT_FIELDS, Effects
 from model.modelfile import ModelFile
 from model.plant import Plant
-from sitl.lockstep import SETTLE_S, RunResult, compare, rig_config, run_lockstep
+from sitl.lockstep import (
+    MERGE_S,
+    SETTLE_S,
+    RunResult,
+    Schedule,
+    WingBoard,
+    compare,
+    make_wings,
+    rig_config,
+    run_lockstep,
+)
 from sitl.maestro_emu import MaestroEmulator
 from sitl.report import comparison_table, plot_run, run_table
 from sitl.scenarios import SCENARIO_NAMES, WINGS, Rig, Scenario, make_scenario
@@ -54,8 +72,11 @@ from sitl.wing import SITL_AERO_LOAD, SimWing, WingSpec
 
 log = logging.getLogger(__name__)
 
-STARTUP_MARGIN_S = 20.0  # roll file beyond the run, for the processes to come up
-STARTUP_TIMEOUT_S = 30.0
+HOLD_S = 1.0  # neutral roll before the scenario: the bridge starts following the FC without a step
+STARTUP_MARGIN_S = 10.0  # roll file beyond the run
+STARTUP_TIMEOUT_S = 30.0  # for each child to come up
+MOCK_START_MAX_S = 10.0  # longest the mock autopilot's process may take from launch to its roll clock's start
+END_MARGIN_S = 0.2  # rig time flown beyond the scenario's stretch
 AGREE_TOLERANCE = 0.20
 
 
@@ -77,13 +98,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model the bridge's feed-forward uses: 'paper' or a MODEL.json (default paper)")
     parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
     parser.add_argument("--mode", choices=MODES, default="ff+pi", help="bridge controller mode (real-time run)")
-    parser.add_argument("--kp", type=float, default=None, help="PI gain, mm/deg (default: the config's 7)")
-    parser.add_argument("--ki", type=float, default=None, help="PI gain, mm/(deg s) (default: the config's 1)")
+    parser.add_argument("--kp", type=float, default=None,
+                        help=f"PI gain, mm/deg (default: {RIG_KP:g} for the simulated rig's fast servo in real time; "
+                             "the paper's 7 in --lockstep, which reproduces the paper's comparison)")
+    parser.add_argument("--ki", type=float, default=None,
+                        help=f"PI gain, mm/(deg s) (default: {RIG_KI:g} in real time; the paper's 1 in --lockstep)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the reference, gusts and noise")
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
 
 
 # ------------------------------------------------------------------ options
+
+
+RIG_KP, RIG_KI = 0.7, 20.0  # PI gains tuned for the simulated rig's servo (real-time demo)
 
 
 def parse_effects(text: str) -> Effects:
@@ -149,48 +176,29 @@ def free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-class VirtualRig:
-    """The two simulated wings behind the Maestro emulator, on the wall clock.
+class VirtualRig(WingBoard):
+    """The two simulated wings behind the Maestro emulator, on the wall clock (rig time, s).
 
-    Every servo target and every analog read first advances the wings to now; each read of a
-    sensor channel is recorded with the wing's true warp and tendon travel at that instant."""
+    ``on_target``/``read_analog`` are the emulator's callbacks; like ``WingBoard`` each advances the
+    wings to now first and each sensor read is recorded with the wing's true warp at that instant."""
 
     def __init__(self, rig: Rig, wings: dict[str, SimWing], clock=time.monotonic) -> None:
-        self.rig, self.wings, self.clock = rig, wings, clock
         self.t0 = clock()
-        self.servo_of = {ch: w for ch, w in zip(rig.servo_channels, WINGS, strict=True)}
-        self.sensor_of = {ch: w for ch, w in zip(rig.sensor_channels, WINGS, strict=True)}
-        self.reads: dict[str, list[tuple[float, int, float, float, float]]] = {w: [] for w in WINGS}
-        self.targets = 0
+        super().__init__(rig, wings, lambda: clock() - self.t0)
 
     def now(self) -> float:
-        return self.clock() - self.t0
+        return self.clock()
 
     def on_target(self, channel: int, quarter_us: int) -> None:
-        wing = self.servo_of.get(channel)
-        if wing is None:
-            return
-        t = self.now()
-        self.wings[wing].advance(t)
-        self.wings[wing].set_pulse(quarter_us / 4.0)
-        self.targets += 1
+        self.set_target(channel, quarter_us / 4.0)
 
     def read_analog(self, channel: int) -> int | None:
-        wing = self.sensor_of.get(channel)
-        if wing is None:
-            return None  # a servo channel: the emulator answers its target
-        t = self.now()
-        w = self.wings[wing]
-        w.advance(t)
-        counts = w.read_counts()
-        self.reads[wing].append((t, counts, w.w_true, w.u_mm, w.airspeed))
-        return counts
+        counts = self.read_counts(channel)
+        return None if counts is None else int(counts)  # None: a servo channel, the emulator answers its target
 
     def tick(self) -> None:
         """Keep the wings' time current between the bridge's calls."""
-        t = self.now()
-        for w in self.wings.values():
-            w.advance(t)
+        self.advance()
 
 
 def _tail(path: Path, n: int = 15) -> str:
@@ -227,86 +235,188 @@ def read_cycle_log(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], vrig: VirtualRig) -> RunResult:
-    """Join the bridge's cycle log with the wings' records (row i = the i-th left-sensor read)."""
-    n = min(len(cyc["t"]), *(len(vrig.reads[w]) for w in WINGS))
-    if n == 0:
-        raise UserError("no control cycles were recorded")
-    rec = {w: np.array(vrig.reads[w][:n]) for w in WINGS}
-    res = RunResult(
-        scenario=scenario.name, mode=mode, t=cyc["t"][:n], airspeed=rec["left"][:, 4],
-        setpoint={w: cyc[f"{w}_setpoint"][:n] for w in WINGS},
-        warp={w: rec[w][:, 2] for w in WINGS},
-        measured={w: cyc[f"{w}_warp"][:n] for w in WINGS},
-        u_cmd={w: cyc[f"{w}_u"][:n] for w in WINGS},
-        u={w: rec[w][:, 3] for w in WINGS},
-    )
-    for w in WINGS:  # the join is right if the bridge read back exactly the counts the wing returned
-        read = scenario.rig.sensor.deg_of_counts(rec[w][:, 1])
-        logged = res.measured[w]
-        ok = np.isfinite(logged)
-        bad = np.mean(np.abs(read[ok] - logged[ok]) > 1e-3) if ok.any() else 1.0
-        if bad > 0.02:
-            log.warning("%s wing: %.0f %% of cycle-log rows do not match the sensor reads; RMS may be off",
-                        w, 100 * bad)
-    flying = cyc["mode"][:n] != "failsafe"
+def join_reads(log_t: np.ndarray, logged_deg: np.ndarray, reads: list, deg_of_counts,
+               window_s: tuple[float, float] = (-0.002, 0.1)) -> tuple[np.ndarray, float]:
+    """Match each cycle-log row to the sensor read the bridge made in that cycle.
+
+    ``reads``: the rig's records (rig time, counts, ...) in order. The rig time of log time 0 is
+    the smallest read-minus-cycle delay over the first rows; then each row takes the first unused
+    read in ``window_s`` around its time whose counts give exactly the logged warp. Returns the
+    index of the read per row (-1: none, e.g. a read the bridge timed out on) and that offset."""
+    n = len(log_t)
+    idx = np.full(n, -1, dtype=np.int64)
+    if not reads or n == 0:
+        return idx, math.nan
+    rec = np.asarray(reads, dtype=np.float64)
+    rt, deg = rec[:, 0], np.asarray(deg_of_counts(rec[:, 1]), dtype=np.float64)
+    k = min(n, len(rt), 50)
+    offset = float(np.min(rt[:k] - log_t[:k]))
+    p = 0
+    for j in range(n):
+        if not math.isfinite(logged_deg[j]):
+            continue
+        lo, hi = log_t[j] + offset + window_s[0], log_t[j] + offset + window_s[1]
+        while p < len(rt) and rt[p] < lo:
+            p += 1
+        q = p
+        while q < len(rt) and rt[q] <= hi:
+            if abs(deg[q] - logged_deg[j]) <= 1e-4 * max(1.0, abs(logged_deg[j])):
+                idx[j], p = q, q + 1
+                break
+            q += 1
+    return idx, offset
+
+
+def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], vrig: VirtualRig,
+                    ) -> tuple[RunResult, float]:
+    """The bridge's cycle log joined with the wings' true warp at each of its sensor reads.
+
+    Times stay the log's (seconds since the bridge started); also returns the rig time of log time 0."""
+    t = cyc["t"]
+    sensor = scenario.rig.sensor
+    cols: dict[str, dict[str, np.ndarray]] = {"warp": {}, "u": {}, "airspeed": {}}
+    offset = math.nan
+    for w in WINGS:
+        idx, off = join_reads(t, cyc[f"{w}_warp"], vrig.reads[w], sensor.deg_of_counts)
+        if w == "left":
+            offset = off
+        rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
+        ok = idx >= 0
+        for name, c in (("warp", 2), ("u", 3), ("airspeed", 4)):
+            col = np.full(t.size, np.nan)
+            col[ok] = rec[idx[ok], c]
+            cols[name][w] = col
+        missed = 1.0 - np.count_nonzero(ok) / max(1, np.count_nonzero(np.isfinite(cyc[f"{w}_warp"])))
+        if missed > 0.02:
+            log.warning("%s wing: %.0f %% of cycle-log rows match no sensor read; they are left out",
+                        w, 100 * missed)
+    flying = cyc["mode"] != "failsafe"
     if not flying.any():
         raise UserError("the bridge never left failsafe: it heard no servo outputs from the mock autopilot")
-    first = res.t[np.argmax(flying)]
-    res.compute_rms(t_from=first + SETTLE_S)
-    return res
+    res = RunResult(
+        scenario=scenario.name, mode=mode, t=t, airspeed=cols["airspeed"]["left"],
+        setpoint={w: cyc[f"{w}_setpoint"] for w in WINGS}, warp=cols["warp"],
+        measured={w: cyc[f"{w}_warp"] for w in WINGS}, u_cmd={w: cyc[f"{w}_u"] for w in WINGS},
+        u=cols["u"], flying=flying,
+    )
+    return res, offset
 
 
-def scenario_offset(scenario: Scenario, t: np.ndarray, setpoint: np.ndarray) -> float:
-    """Scenario time at log time 0: the shift that best matches the logged setpoint to the reference."""
+def scenario_offset(scenario: Scenario, t: np.ndarray, setpoint: np.ndarray, lo: float, hi: float) -> float:
+    """Scenario time at log time 0, in [lo, hi]: the shift that best matches the logged setpoint
+    (flying cycles only) to the scenario's reference."""
     ok = np.isfinite(setpoint)
     t, sp = t[ok], setpoint[ok]
-    best, best_err = 0.0, math.inf
-    for step, span in ((0.05, (0.0, STARTUP_MARGIN_S)), (0.002, None)):
-        lo, hi = span if span is not None else (best - 0.1, best + 0.1)
-        for tau in np.arange(lo, hi, step):
+    best, best_err = lo, math.inf
+    for step, span in ((0.005, None), (0.0002, 0.006)):
+        a, b = (lo, hi) if span is None else (best - span, best + span)
+        for tau in np.arange(a, b + step / 2, step):
             err = float(np.mean((scenario.reference(t + tau)["left"] - sp) ** 2))
             if err < best_err:
                 best, best_err = float(tau), err
     return best
 
 
+def measured_schedule(t: np.ndarray, flying: np.ndarray, tau: float, loop_hz: float, servo_hz: float,
+                      wake: bool) -> Schedule:
+    """The real-time run's cycle schedule in scenario time (``t``: log times, ``tau``: scenario time
+    at log time 0): the fixed ticks' grid, where the FC's messages fell in it, when they began.
+
+    The first cycle after each deadline is that tick; the cycles in between were woken by messages."""
+    period, speriod = 1.0 / loop_hz, 1.0 / servo_hz
+    k = np.floor(t / period + 1e-9).astype(np.int64)
+    first = np.ones(t.size, dtype=bool)
+    first[1:] = k[1:] != k[:-1]
+    late = t[first] - k[first] * period
+    tick_off = tau + float(np.median(late))
+    woken = ~first & flying
+    start = tau + float(t[np.argmax(flying)])
+    lat = Schedule().latency_s
+    if wake and np.count_nonzero(woken) > 0.1 * np.count_nonzero(first & flying):
+        ph = 2 * np.pi * (((tau + t[woken]) % speriod) / speriod)
+        mean = math.atan2(float(np.mean(np.sin(ph))), float(np.mean(np.cos(ph))))
+        msg_off = (mean / (2 * np.pi)) * speriod % speriod - lat
+    else:  # messages read by the ticks themselves: they arrive just before (or at) a tick
+        msg_off = tick_off - lat - 0.5 * MERGE_S
+    return Schedule(tick_offset_s=tick_off % period, msg_offset_s=msg_off % speriod,
+                    stream_start_s=start - lat - 0.25 * speriod, wake_on_message=wake)
+
+
+def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig) -> tuple[tuple[float, ...], ...]:
+    """Per cycle-log row: when the bridge read each sensor and set each servo, after the cycle's start
+    (s; (left read, left target, right read, right target); the median where a row has no read)."""
+    cols = []
+    for w in WINGS:
+        rd = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)[:, 0]
+        tg = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
+        start = log_t + rig_at_log0
+        i = np.searchsorted(rd, start - 0.002)  # the first read at or after the cycle's start
+        r = np.full(log_t.size, np.nan)
+        ok = i < rd.size
+        r[ok] = rd[i[ok]] - start[ok]
+        j = np.searchsorted(tg, start + np.nan_to_num(r, nan=0.0))  # the first target after that read
+        g = np.full(log_t.size, np.nan)
+        ok = j < tg.size
+        g[ok] = tg[j[ok]] - start[ok]
+        for c in (r, g):
+            bad = ~np.isfinite(c) | (c > 0.05)
+            c[bad] = np.median(c[~bad]) if (~bad).any() else 0.0
+        cols += [r, g]
+    return tuple(zip(*(c.tolist() for c in cols), strict=True))
+
+
 def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     rig = Rig()
     name = args.scenario or "random"
-    scenario = make_scenario(name, args.duration + STARTUP_MARGIN_S, rig=rig, seed=args.seed)
+    scenario = make_scenario(name, HOLD_S + args.duration + STARTUP_MARGIN_S, rig=rig, seed=args.seed,
+                             hold_s=HOLD_S)
     roll_csv = scenario.write_csv(out / "roll.csv")
     fc_port, gcs_port = free_udp_port(), free_udp_port()
-    from sitl.lockstep import make_wings
-
     wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=args.seed)
     vrig = VirtualRig(rig, wings)
     emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
     mock = bridge = None
     bridge_log = out / "bridge-cycles.csv"
     t_start = time.monotonic()
+    model_file = "paper" if args.bridge_model == "paper" else str(Path(args.bridge_model).resolve())
+    # the rig's servo is fast (0.1 s/60 deg): the paper's Kp = 7 sits at the stability edge of a 100 Hz loop
+    # there and real scheduling gaps set it ringing, so the demo flies gains tuned for this servo
+    kw = {"kp": RIG_KP if args.kp is None else args.kp, "ki": RIG_KI if args.ki is None else args.ki}
+    toml = rig.config_toml(connection=f"udpin:127.0.0.1:{fc_port}", servo_backend="maestro:PTY",
+                           sensor_backend="maestro:", mode=args.mode, model_file=model_file, log=bridge_log.name,
+                           params_file="params.json", **kw)
+    cfg = parse_config(tomllib.loads(toml), out, origin="sitl")
+    print(f"sitl: {scenario.name} ({scenario.description}), {args.duration:g} s after a {HOLD_S:g} s neutral "
+          f"hold; output in {out}", flush=True)
     try:
         pty = emu.start()
-        model_file = "paper" if args.bridge_model == "paper" else str(Path(args.bridge_model).resolve())
-        kw = {k: v for k, v in (("kp", args.kp), ("ki", args.ki)) if v is not None}
         cfg_path = out / "warpbridge-sitl.toml"
-        cfg_path.write_text(rig.config_toml(
-            connection=f"udpin:127.0.0.1:{fc_port}", servo_backend=f"maestro:{pty}", sensor_backend="maestro:",
-            mode=args.mode, model_file=model_file, log=bridge_log.name, params_file="params.json", **kw),
-            encoding="utf-8")
+        cfg_path.write_text(toml.replace("maestro:PTY", f"maestro:{pty}"), encoding="utf-8")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # the bridge first (listening, in failsafe), then the FC: its roll clock starts with its process
+        print(f"sitl: starting the bridge (Maestro emulator on {pty}) ...", flush=True)
+        with (out / "bridge.log").open("w") as blog:
+            bridge = subprocess.Popen(
+                [sys.executable, "-m", "bridge.cli", "-v", "run", "--config", str(cfg_path)],
+                stdout=blog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        children = ((bridge, "bridge", "bridge.log"),)
+        _wait_until(lambda: bool(vrig.reads["left"]), vrig, children, out, "the bridge to start its loop")
+        print(f"sitl: bridge running ({vrig.now():.1f} s); starting the mock {args.autopilot} "
+              f"(UDP {fc_port}, GCS on udpin:127.0.0.1:{gcs_port}) ...", flush=True)
+        t_mock = vrig.now()
         with (out / "mock-autopilot.log").open("w") as mlog:
             mock = subprocess.Popen(
                 [sys.executable, "-m", "sitl.mock_autopilot", "--fc-port", str(fc_port), "--gcs-port", str(gcs_port),
                  "--autopilot", args.autopilot, "--roll-file", str(roll_csv), "--seed", str(args.seed), "-v"],
                 stdout=mlog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        with (out / "bridge.log").open("w") as blog:
-            bridge = subprocess.Popen(
-                [sys.executable, "-m", "bridge.cli", "-v", "run", "--config", str(cfg_path)],
-                stdout=blog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        print(f"sitl: {scenario.name} ({scenario.description}); mock {args.autopilot} on UDP {fc_port} "
-              f"(GCS on udpin:127.0.0.1:{gcs_port}), Maestro emulator on {pty}, output in {out}")
-        _wait_for_cycles(args.duration, vrig, mock, bridge, out, loop_hz=100.0)
+        children = ((mock, "mock autopilot", "mock-autopilot.log"), (bridge, "bridge", "bridge.log"))
+        mock_log = out / "mock-autopilot.log"
+        _wait_until(lambda: "message 36 interval set" in _text(mock_log), vrig, children, out,
+                    "the mock autopilot to stream servo outputs to the bridge")
+        t_stream = vrig.now()
+        print(f"sitl: FC streaming to the bridge ({t_stream - t_mock:.1f} s); flying "
+              f"{HOLD_S + args.duration:g} s in real time ...", flush=True)
+        _fly(HOLD_S + args.duration + END_MARGIN_S, vrig, t_stream, children, out)
     finally:
         _stop_child(bridge, "bridge", signal.SIGTERM)  # the bridge closes its log on SIGTERM as on Ctrl-C
         _stop_child(mock, "mock autopilot", signal.SIGTERM)
@@ -316,58 +426,100 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     if not bridge_log.exists():
         raise UserError(f"the bridge wrote no cycle log; see {out / 'bridge.log'}:\n{_tail(out / 'bridge.log')}")
     cyc = read_cycle_log(bridge_log)
-    rt = realtime_result(scenario, args.mode, cyc, vrig)
-    # the same stretch of the same scenario in lock-step
-    tau = scenario_offset(scenario, rt.t, rt.setpoint["left"])
-    flying = cyc["mode"][: rt.t.size] != "failsafe"
-    t_from = rt.t[np.argmax(flying)] + SETTLE_S + tau
-    t_to = rt.t[-1] + tau
-    ls_sc = make_scenario(name, t_to + 0.5, rig=rig, seed=args.seed)
-    cfg = rig_config(rig, args.mode, args.kp, args.ki)
-    ls, _ = run_lockstep(ls_sc, mode=args.mode, spec=spec, config=cfg,
-                         controller_params=bridge_params(args.bridge_model), seed=args.seed)
-    ls.compute_rms(t_from=t_from, t_to=t_to)
+    np.savez_compressed(out / "rig.npz", **{f"{w}_{k}": np.asarray(v, dtype=np.float64) for w in WINGS for k, v in
+                                           (("reads", vrig.reads[w]), ("targets", vrig.target_log[w]))})
+    rt, rig_at_log0 = realtime_result(scenario, args.mode, cyc, vrig)
+    # log time -> scenario time: the scenario started with the mock's process, after the bridge's log
+    guess = rig_at_log0 - t_mock
+    fl = rt.flying if rt.flying is not None else np.ones(rt.t.size, dtype=bool)
+    tau = scenario_offset(scenario, rt.t[fl], rt.setpoint["left"][fl], guess - MOCK_START_MAX_S, guess + 0.05)
+    rt.t = rt.t + tau
+    # the same stretch of the same scenario in lock-step, with the real-time run's cycle schedule
+    sched = measured_schedule(cyc["t"], fl, tau, cfg.loop.rate_hz, cfg.link.servo_rate_hz,
+                              cfg.loop.wake_on_message)
+    t_from = max(HOLD_S, float(rt.t[np.argmax(fl)])) + SETTLE_S
+    t_to = min(HOLD_S + args.duration, float(rt.t[-1]))
+    if t_to - t_from < 1.0:
+        raise UserError(f"the bridge followed the FC for only {max(0.0, t_to - t_from + SETTLE_S):.1f} s")
+    print("sitl: flying the same stretch in lock-step (the bridge's cycle on a simulated clock) ...", flush=True)
+    runs = {}
+    replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig))
+    for label, sch in (("lock-step", replay), ("ideal timing", sched)):
+        runs[label], _ = run_lockstep(
+            scenario, mode=args.mode, spec=spec, config=rig_config(rig, args.mode, kw["kp"], kw["ki"]),
+            controller_params=bridge_params(args.bridge_model), seed=args.seed, schedule=sch, t_end=t_to + 0.05,
+            flow_shift_s=rig_at_log0 - tau)
+        runs[label].compute_rms(t_from=t_from, t_to=t_to)
+    ls, ideal = runs["lock-step"], runs["ideal timing"]
+    rt.compute_rms(t_from=t_from, t_to=t_to)
     print()
-    print(run_table({"real time": rt, "lock-step": ls}))
+    print(run_table({"real time": rt, **runs}))
+    print("lock-step: the bridge's cycle at the real-time run's cycle times; ideal timing: at its nominal "
+          "schedule (no scheduling gaps).")
     rel = {w: abs(rt.rms[w] - ls.rms[w]) / ls.rms[w] for w in WINGS}
     agree = all(v <= AGREE_TOLERANCE for v in rel.values())
-    print(f"real time vs lock-step: {', '.join(f'{w} {100 * v:.0f} %' for w, v in rel.items())} apart "
+    print(f"scenario {t_from:.2f} .. {t_to:.2f} s; real time vs lock-step: "
+          f"{', '.join(f'{w} {100 * v:.0f} %' for w, v in rel.items())} apart "
           f"({'agree' if agree else 'DISAGREE'} within {100 * AGREE_TOLERANCE:.0f} %)")
+    if abs(rt.cycles - ls.cycles) > 0.05 * ls.cycles:
+        log.warning("the real-time bridge ran %d cycles on that stretch, lock-step %d: the machine was busy",
+                    rt.cycles, ls.cycles)
     summary = {"scenario": name, "mode": args.mode, "duration_s": args.duration, "autopilot": args.autopilot,
-               "effects": spec.plant.effects.to_dict(), "scenario_offset_s": tau,
-               "rms_deg": {"realtime": rt.rms, "lockstep": ls.rms}, "agree": agree, "cycles": int(rt.t.size)}
+               "effects": spec.plant.effects.to_dict(), "scenario_offset_s": tau, "hold_s": HOLD_S,
+               "stretch_s": [t_from, t_to],
+               "schedule": {"tick_offset_s": sched.tick_offset_s, "msg_offset_s": sched.msg_offset_s,
+                            "stream_start_s": sched.stream_start_s, "wake_on_message": sched.wake_on_message},
+               "rms_deg": {"realtime": rt.rms, "lockstep": ls.rms, "lockstep_ideal_timing": ideal.rms},
+               "rel_diff": rel, "agree": agree,
+               "cycles": int(rt.cycles), "cycles_lockstep": int(ls.cycles), "cycles_logged": int(cyc["t"].size)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     if not args.no_plot:
-        png = plot_run(rt, out / "sitl.png", title=f"SITL real time: {name}, {args.mode}")
+        png = plot_run(rt, out / "sitl.png", title=f"SITL real time: {name}, {args.mode}", other=ls)
         print(f"plot: {png}")
     print(f"logs: {out}")
     return 0
 
 
-def _wait_for_cycles(duration: float, vrig: VirtualRig, mock, bridge, out: Path, loop_hz: float) -> None:
-    """Advance the wings until the bridge has run ``duration`` s of cycles; fail if a child dies."""
+def _text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return ""
+
+
+def _check_children(children, out: Path) -> None:
+    for proc, name, logf in children:
+        if proc.poll() is not None:
+            raise UserError(f"the {name} exited with status {proc.returncode}; {out / logf}:\n{_tail(out / logf)}")
+
+
+def _wait_until(done, vrig: VirtualRig, children, out: Path, what: str) -> None:
+    """Keep the wings' time current until ``done()``; fail if a child dies or it takes too long."""
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while not done():
+        vrig.tick()
+        _check_children(children, out)
+        if time.monotonic() > deadline:
+            logs = "\n".join(f"{out / f}:\n{_tail(out / f)}" for _, _, f in children)
+            raise UserError(f"gave up waiting {STARTUP_TIMEOUT_S:g} s for {what}\n{logs}")
+        time.sleep(0.005)
+
+
+def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> None:
+    """Advance the wings for ``seconds`` of rig time from ``t0``, with progress; fail if a child dies."""
     from tqdm import tqdm
 
-    target = int(duration * loop_hz)
-    deadline = time.monotonic() + duration * 3 + STARTUP_TIMEOUT_S
-    started = None
-    with tqdm(total=round(duration, 1), unit="s", desc="sitl", leave=False,
-              disable=not sys.stderr.isatty()) as bar:
-        while True:
+    tty = sys.stderr.isatty()
+    next_line = 5.0
+    with tqdm(total=round(seconds, 1), unit="s", desc="sitl", leave=False, disable=not tty) as bar:
+        while (flown := vrig.now() - t0) < seconds:
             vrig.tick()
-            n = len(vrig.reads["left"])
-            if n and started is None:
-                started = time.monotonic()
-            bar.n = round(min(n / loop_hz, duration), 1)
+            bar.n = round(min(flown, seconds), 1)
             bar.refresh()
-            if n >= target:
-                return
-            for proc, name, logf in ((mock, "mock autopilot", "mock-autopilot.log"), (bridge, "bridge", "bridge.log")):
-                if proc.poll() is not None:
-                    raise UserError(f"the {name} exited with status {proc.returncode}; "
-                                    f"{out / logf}:\n{_tail(out / logf)}")
-            if time.monotonic() > deadline:
-                raise UserError(f"the bridge ran only {n} cycles of {target} in time; see {out / 'bridge.log'}")
+            if not tty and flown >= next_line:
+                print(f"sitl: {next_line:g} / {seconds:.0f} s", flush=True)
+                next_line += 5.0
+            _check_children(children, out)
             time.sleep(0.005)
 
 

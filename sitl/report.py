@@ -2,7 +2,7 @@
 
 ``comparison_table(rows)`` formats lock-step ``CompareRow`` s (RMS tracking error
 per wing and mode, beside the paper's bench figures); ``run_table(results)``
-formats one or more runs' RMS per wing; ``plot_run(result, path)`` draws
+formats one or more runs' RMS per wing; ``plot_run(result, path, other=)`` draws
 setpoint vs true warp, the tracking error and the hysteresis loop (tendon
 travel vs warp) for each wing, with matplotlib's Agg backend (no display).
 """
@@ -42,16 +42,21 @@ def comparison_table(rows: Iterable[CompareRow]) -> str:
 
 def run_table(results: dict[str, RunResult]) -> str:
     """RMS per wing for named runs (e.g. {"real time": ..., "lock-step": ...})."""
-    head = f"{'run':<12} {'scenario':<9} {'mode':<18} {'left':>7} {'right':>7} {'samples':>8}"
+    head = f"{'run':<12} {'scenario':<9} {'mode':<18} {'left':>7} {'right':>7} {'cycles':>7}"
     lines = [head, "-" * len(head)]
     for name, r in results.items():
+        cycles = r.cycles if r.cycles else r.t.size
         lines.append(f"{name:<12} {r.scenario:<9} {MODE_LABEL.get(r.mode, r.mode):<18} "
-                     f"{_num(r.rms.get('left'))} {_num(r.rms.get('right'))} {r.t.size:>8d}")
+                     f"{_num(r.rms.get('left'))} {_num(r.rms.get('right'))} {cycles:>7d}")
+    lines.append("RMS of setpoint - true warp (deg) over the control cycles of the same stretch of the scenario.")
     return "\n".join(lines)
 
 
-def plot_run(result: RunResult, path: str | Path, title: str | None = None) -> Path:
-    """PNG of one run: per wing, setpoint and warp over time, error, and the hysteresis loop."""
+def plot_run(result: RunResult, path: str | Path, title: str | None = None, other: RunResult | None = None,
+             other_label: str = "lock-step") -> Path:
+    """PNG of one run: per wing, setpoint and warp over time, error, and the hysteresis loop.
+
+    The stretch the RMS covers is shaded; ``other`` (e.g. the lock-step run) is drawn thin beside it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -64,15 +69,24 @@ def plot_run(result: RunResult, path: str | Path, title: str | None = None) -> P
         ax = axes[0, j]
         ax.plot(t, sp, "--", lw=1, label="setpoint")
         ax.plot(t, wt, lw=1, label="warp (true)")
-        ax.set_title(f"{w} wing: RMS {result.rms.get(w, float('nan')):.3f} deg")
+        if other is not None:
+            ax.plot(other.t, other.warp[w], lw=0.6, alpha=0.8, label=f"warp ({other_label})")
+        ax.set_title(f"{w} wing: RMS {result.rms.get(w, float('nan')):.3f} deg"
+                     + (f" ({other_label} {other.rms.get(w, float('nan')):.3f})" if other is not None else ""))
         ax.set_xlabel("t (s)")
         ax.set_ylabel("warp (deg)")
         ax.legend(loc="upper right", fontsize=8)
         ax = axes[1, j]
         ax.plot(t, sp - wt, lw=0.8, color="C3")
+        if other is not None:
+            ax.plot(other.t, other.setpoint[w] - other.warp[w], lw=0.5, alpha=0.6, color="C1")
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_xlabel("t (s)")
         ax.set_ylabel("setpoint - warp (deg)")
+        lo, hi = result.stretch
+        if np.isfinite(lo) and np.isfinite(hi):
+            for a in axes[:2, j]:
+                a.axvspan(lo, hi, color="0.9", zorder=0)
         ax = axes[2, j]
         ax.plot(result.u[w], wt, lw=0.6, color="C2")
         ax.set_xlabel("tendon travel u (mm)")

@@ -12,7 +12,9 @@ low-passed at 1 Hz, scaled so each wing's warp setpoint swings 4 deg about its
 bias), ``steps``, ``doublet``, ``sweep`` (0.5 -> 3 Hz, the paper's sine range),
 and ``gust7`` / ``gust12`` (the random reference in the paper's gusty tunnel
 flow at 7 / 12 m/s). Calm scenarios are on the bench (0 m/s), like the paper's.
-``Scenario.pwm_at(t)`` is the roll source the mock autopilot takes (a function
+``make_scenario(..., hold_s=)`` puts a neutral hold before the scenario (the
+real-time run flies one, so the bridge, which holds neutral until the FC's first
+message, never sees a step at start-up). ``Scenario.pwm_at(t)`` is the roll source the mock autopilot takes (a function
 of time -> {channel: us}); ``Scenario.write_csv`` writes the same as
 ``t,ch1,airspeed``.
 """
@@ -182,8 +184,11 @@ _BUILDERS: dict[str, tuple[str, Callable[[np.ndarray, float, int], np.ndarray], 
 
 
 def make_scenario(name: str, duration_s: float = 20.0, *, rig: Rig | None = None, seed: int = 0,
-                  warp_amplitude_deg: float = 4.0, gust_intensity: float = 0.3) -> Scenario:
-    """Build the named scenario; ``seed`` fixes the random reference and the gusts."""
+                  warp_amplitude_deg: float = 4.0, gust_intensity: float = 0.3, hold_s: float = 0.0) -> Scenario:
+    """Build the named scenario; ``seed`` fixes the random reference and the gusts.
+
+    ``hold_s``: neutral aileron for that long first, then the scenario (``duration_s`` counts both),
+    so a bridge that starts following the FC during the hold sees no step."""
     if name not in _BUILDERS:
         raise ValueError(f"unknown scenario {name!r} (one of {', '.join(SCENARIO_NAMES)})")
     if not duration_s > 0:
@@ -193,8 +198,14 @@ def make_scenario(name: str, duration_s: float = 20.0, *, rig: Rig | None = None
     amp = warp_amplitude_deg / rig.warp_per_aileron
     if amp > 1:
         raise ValueError(f"warp amplitude {warp_amplitude_deg:g} deg exceeds the rig's range")
+    if not 0.0 <= hold_s < duration_s:
+        raise ValueError("the neutral hold must be shorter than the scenario")
     t = _grid(duration_s)
-    a = np.clip(build(t, amp, seed), -1.0, 1.0)
+    if hold_s > 0:
+        tb = _grid(duration_s - hold_s)
+        a = np.interp(t - hold_s, tb, np.clip(build(tb, amp, seed), -1.0, 1.0), left=0.0)
+    else:
+        a = np.clip(build(t, amp, seed), -1.0, 1.0)
     gust = GustSpec(mean_ms=v, intensity=gust_intensity, seed=seed + 1000) if name.startswith("gust") else None
     return Scenario(name=name, description=desc, duration_s=float(duration_s), rig=rig, grid_t=t, grid_a=a,
                     airspeed_ms=v, gust=gust)

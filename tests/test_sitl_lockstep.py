@@ -73,3 +73,34 @@ def test_a_wing_unlike_the_model_is_worse_in_feed_forward_only():
     nominal, _ = run_lockstep(sc, mode="ff")
     changed, _ = run_lockstep(sc, mode="ff", spec=WingSpec().with_effects(Effects(backlash_mm=0.4)))
     assert changed.rms["left"] > nominal.rms["left"] + 0.05
+
+
+def test_lockstep_runs_the_bridge_cycle_on_ticks_and_on_each_servo_message():
+    from sitl.lockstep import Schedule
+
+    sc = make_scenario("random", 3.0, seed=0)
+    woken, _ = run_lockstep(sc)
+    ticks_only, _ = run_lockstep(sc, schedule=Schedule(wake_on_message=False))
+    assert woken.t.size == pytest.approx(2 * ticks_only.t.size, rel=0.02)  # 100 Hz ticks + 100 Hz messages
+    assert np.all(np.diff(ticks_only.t) == pytest.approx(0.01))
+    assert np.all(woken.flying[woken.t > 0.01]) and not woken.flying[0]  # failsafe until the first message
+
+
+def test_lockstep_replays_given_cycle_times():
+    from sitl.lockstep import Schedule
+
+    sc = make_scenario("random", 2.0, seed=0)
+    times = tuple(np.cumsum(np.r_[0.0, np.full(150, 0.01), 0.03, np.full(30, 0.004)]))  # with a 30 ms gap
+    res, _ = run_lockstep(sc, schedule=Schedule(cycle_times=times))
+    np.testing.assert_allclose(res.t, times)
+
+
+def test_a_neutral_hold_puts_the_scenario_off_without_a_step():
+    sc = make_scenario("random", 6.0, seed=0, hold_s=1.0)
+    plain = make_scenario("random", 5.0, seed=0)
+    t = np.arange(0.0, 6.0, 0.005)
+    a = sc.aileron(t)
+    assert np.all(a[t <= 1.0] == 0.0)
+    start = (t > 0.9) & (t < 1.2)
+    assert np.max(np.abs(np.diff(a[start]))) < 1e-3  # starts from neutral smoothly (a ramp, not a step)
+    np.testing.assert_allclose(sc.aileron(t[t >= 1.0]), plain.aileron(t[t >= 1.0] - 1.0), atol=1e-9)
