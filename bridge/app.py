@@ -38,6 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.calibrate import FieldTuning
 from bridge.config import WINGS, Config, WingConfig, backend_has_sensor
 from bridge.controller import MODES, WingController
 from bridge.cyclelog import CycleLog
@@ -77,9 +78,11 @@ def load_model(config: Config) -> BoucWenParams:
     try:
         doc = json.loads(config.model_file.read_text(encoding="utf-8"))
         mf = ModelFile.from_dict(doc)
+    except RecursionError:
+        raise UserError(f"[model] file: {config.model_file}: JSON nested too deeply") from None
     except OSError as e:
         raise UserError(f"[model] file: cannot read {config.model_file}: {e.strerror or e}") from None
-    except ValueError as e:
+    except (ValueError, TypeError, UnicodeDecodeError) as e:
         raise UserError(f"[model] file: {config.model_file}: {e}") from None
     if mf.effects.active():
         log.warning("model effects %s are used by predict only; the feed-forward runs the Bouc-Wen model",
@@ -134,6 +137,7 @@ class WingState:
     raw_last: float | None = None  # sensor: last raw reading, when it changed, command then
     raw_since: float = 0.0
     u_at_change: float = 0.0
+    frozen: bool = False  # latched until the raw reading changes (a frozen sensor does not flap)
     last: dict[str, float | None] = field(default_factory=dict)
 
 
@@ -183,12 +187,21 @@ class Bridge:
         self.servo, self.sensor = servo, sensor
         self._owns_devices = servo is None
         self.log = None
-        self.store = ParamStore(param_specs(config, self.model, self._apply_param), config.params_file)
+        self.tuning = FieldTuning(
+            self.wings, self.link, self.telemetry, base_model=lambda: self.model, params_file=config.params_file,
+            clock=clock, loop_hz=config.loop.rate_hz, allowed_gcs=config.link.gcs_sysid_allow,
+            has_sensor=lambda n: self.has_sensor and self.wings[n].sensor_cal is not None,
+            max_warp=lambda n: self.mixer.wings[n].max_warp_deg)
+        for name, w in self.wings.items():  # each wing flies its own calibration of the model
+            w.ctl.set_model(self.tuning.wing_model(name))
+        self.store = ParamStore(param_specs(config, self.model, self._apply_param)
+                                + self.tuning.param_specs(self._apply_param), config.params_file)
         try:
             self.params = ParamServer(self.store, self.link, allowed_gcs=config.link.gcs_sysid_allow, clock=clock)
             for name in self.store.names:  # values set earlier over MAVLink override the config
                 if self.store.get(name) != self.store.specs[name].default:
                     self._apply_param(name, self.store.get(name))
+            self.tuning.attach(self.store, lambda n: self.params.send_value(self.store.index(n)))
             if connect_timeout > 0:
                 self.link.connect(connect_timeout)
             self._servo_down_since: float | None = None
@@ -277,7 +290,7 @@ class Bridge:
         elif name in ("WB_MAXWARP", "WB_BIAS"):
             self.mixer.retune(**{"WB_MAXWARP": {"max_warp_deg": v}, "WB_BIAS": {"bias_deg": v}}[name])
             for wname, w in self.wings.items():
-                w.ctl.set_model(self.model, w_max=self.mixer.wings[wname].max_warp_deg)
+                w.ctl.set_model(self.tuning.wing_model(wname), w_max=self.mixer.wings[wname].max_warp_deg)
                 w.ctl.set_deadband(self._deadband(wname))
         elif name == "WB_TLM_HZ":
             self.telemetry.rate_hz = v
@@ -291,9 +304,10 @@ class Bridge:
             vals[name[len("WB_BW_"):]] = v
             p = [vals[k] for k in BW_FIELDS]
             model = BoucWenParams(a1=p[0], a2=p[1], a3=p[2], az=p[3], A=p[4], n=p[5], b=tuple(p[6:]))
-            for c in ctls:
-                c.set_model(model)
             self.model = model
+            self.tuning.base_changed()  # each wing: its calibration applied to the new base model
+        elif FieldTuning.owns(name):
+            self.tuning.apply_param(name, v)
 
     # ------------------------------------------------------------------ the cycle
 
@@ -317,16 +331,20 @@ class Bridge:
                 problem = f"reading {raw:g} out of range"
             elif raw != w.raw_last:
                 w.raw_last, w.raw_since, w.u_at_change = raw, now, w.ctl.last_u
-            elif now - w.raw_since > self.config.loop.sensor_frozen_s and \
-                    abs((w.ctl.last_u) - w.u_at_change) > SENSOR_MOVE_MM:
+                w.frozen = False
+            elif w.frozen or (now - w.raw_since > self.config.loop.sensor_frozen_s and
+                              abs((w.ctl.last_u) - w.u_at_change) > SENSOR_MOVE_MM):
+                w.frozen = True
                 problem = "frozen"
-        key = f"sensor-{name}"
+        key, back = f"sensor-{name}", f"sensor-back-{name}"
         if problem is not None:
+            self.telemetry.clear(back)
             self.telemetry.status(SEV_WARNING, f"WB {name} sensor {problem}: ff only", key=key)
             return None
         if self.telemetry.active(key):
+            # keyed too, so a flapping sensor reports "back" at most once per key hold-off
             self.telemetry.clear(key)
-            self.telemetry.status(SEV_NOTICE, f"WB {name} sensor back")
+            self.telemetry.status(SEV_NOTICE, f"WB {name} sensor back", key=back)
         return w.sensor_cal.deg_for_counts(raw)
 
     def _setpoints(self, now: float) -> dict[str, float]:
@@ -384,7 +402,7 @@ class Bridge:
         self._last_tick = now
         self.cycles += 1
         try:
-            self.params.poll(self.link.poll())
+            self.params.poll(self.tuning.handle_messages(self.link.poll()))
             self._fc_servo_sync()
         except Exception:  # noqa: BLE001 - the link or a GCS request must not stop the loop
             log.exception("link/parameter handling failed")
@@ -403,7 +421,10 @@ class Bridge:
             row: dict[str, float | None] = {"setpoint": setpoints[name]}
             try:
                 measured = self._measure(name, w, now)
-                cmd = w.ctl.step(setpoints[name], measured, dt)
+                sp = row["setpoint"] = self.tuning.setpoint(name, now, setpoints[name])  # calibration excitation
+                self.tuning.before_step(name)  # pre-tension estimate into the feed-forward
+                cmd = w.ctl.step(sp, self.tuning.measurement(name, measured), dt)
+                self.tuning.after_step(name, now, cmd.u_cmd, measured, dt)
                 pulse = w.servo_cal.pulse_for_mm(cmd.u_cmd)
                 row.update(ff=cmd.ff, pi=cmd.pi, u=cmd.u_cmd, warp=measured, pulse=pulse)
                 modes.append(cmd.mode)
@@ -415,6 +436,10 @@ class Bridge:
                 log.exception("%s wing cycle failed", name)
             rows[name] = row
             w.last = row
+        try:
+            self.tuning.poll(now)  # calibration interlock, progress and results; adaptation telemetry
+        except Exception:  # noqa: BLE001
+            log.exception("field tuning failed")
         mode = "failsafe" if self.failsafe else ("/".join(dict.fromkeys(modes)) or "none")
         self._taps(now, mode, rows)
 

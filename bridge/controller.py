@@ -83,6 +83,7 @@ class WingController:
         self._u_prev: float | None = None
         self._ran: tuple[str, str] | None = None  # (requested, effective) mode of the last step
         self._retune = False
+        self._pt_offset, self._pt_gain = 0.0, 1.0  # pre-tension compensation: u = offset + u_model / gain
 
     @property
     def last_u(self) -> float:
@@ -118,6 +119,14 @@ class WingController:
         self._line = straight_line(params, self._w_max)
         self._retune = True
 
+    def set_pretension(self, offset: float, gain: float) -> None:
+        """Compensate a pre-tension change (``model.effects`` ``pretension``) on the model's output:
+        ``ff = offset + u_model / gain`` (open and ff modes). Meant for small, slow changes (online
+        adaptation): applied as is, no bumpless transfer."""
+        if not (math.isfinite(offset) and math.isfinite(gain) and gain > 0):
+            raise ValueError("pre-tension offset must be finite and gain positive")
+        self._pt_offset, self._pt_gain = float(offset), float(gain)
+
     def step(self, setpoint: float, measured: float | None, dt: float) -> Command:
         if math.isfinite(setpoint):  # play: the model and the error see r, which ignores jitter
             if setpoint > self._r + self.deadband:
@@ -126,11 +135,13 @@ class WingController:
                 self._r = setpoint + self.deadband
         r = self._r
         u_model = self._model.inverse_step(r)  # always advanced, so switching into ff finds it current
+        u_model = self._pt_offset + u_model / self._pt_gain
         have_meas = measured is not None and math.isfinite(measured)
         flags = Flags.NONE if have_meas else Flags.SENSOR_MISSING
         mode = self.mode if have_meas or self.mode in ("open", "ff") else "ff"
         use_pi = mode in ("pi", "ff+pi")
-        base = {"open": self._line[0] * r + self._line[1], "ff": u_model, "ff+pi": u_model, "pi": 0.0}[mode]
+        line = self._pt_offset + (self._line[0] * r + self._line[1]) / self._pt_gain
+        base = {"open": line, "ff": u_model, "ff+pi": u_model, "pi": 0.0}[mode]
         e = r - measured if have_meas else 0.0
         i_lo, i_hi = (self.u_min, self.u_max) if mode == "pi" else (-self.i_max, self.i_max)
         self._i = min(i_hi, max(i_lo, self._i))
