@@ -54,6 +54,7 @@ from bridge.telemetry import MODE_CODES, Telemetry
 from hw import DeviceError, open_sensor, open_servo
 from hw.calibration import SensorCalibration, ServoCalibration
 from model.boucwen import BoucWenParams
+from model.compensation import INVERTIBLE, folded_params
 from model.modelfile import ModelFile
 
 log = logging.getLogger(__name__)
@@ -72,9 +73,16 @@ BW_FIELDS = ("A1", "A2", "A3", "AZ", "A", "N", "B1", "B2", "B3", "B4", "B5", "B6
 
 
 def load_model(config: Config) -> BoucWenParams:
-    """The Bouc-Wen parameters named by ``[model] file`` (``"paper"`` -> the paper's)."""
+    """The Bouc-Wen parameters named by ``[model] file`` (``"paper"`` -> the paper's), with the file's
+    friction and pre-tension effects folded in exactly."""
+    mf = load_model_file(config)
+    return folded_params(mf.params, mf.effects)
+
+
+def load_model_file(config: Config) -> ModelFile:
+    """The whole ``[model] file``: parameters and effects."""
     if config.model_file is None:
-        return BoucWenParams.paper()
+        return ModelFile(params=BoucWenParams.paper())
     try:
         doc = json.loads(config.model_file.read_text(encoding="utf-8"))
         mf = ModelFile.from_dict(doc)
@@ -84,10 +92,11 @@ def load_model(config: Config) -> BoucWenParams:
         raise UserError(f"[model] file: cannot read {config.model_file}: {e.strerror or e}") from None
     except (ValueError, TypeError, UnicodeDecodeError) as e:
         raise UserError(f"[model] file: {config.model_file}: {e}") from None
-    if mf.effects.active():
-        log.warning("model effects %s are used by predict only; the feed-forward runs the Bouc-Wen model",
-                    ", ".join(mf.effects.active()))
-    return mf.params
+    left = [e for e in mf.effects.active() if e not in INVERTIBLE]
+    if left:
+        log.warning("model effects %s cannot be inverted by a feed-forward; the PI trim handles them",
+                    ", ".join(left))
+    return mf
 
 
 def _bw_values(p: BoucWenParams) -> list[float]:
@@ -156,7 +165,9 @@ class Bridge:
                  clock: Callable[[], float] = time.monotonic, connect_timeout: float = 0.0) -> None:
         """``servo``/``sensor``/``link`` replace the configured ones (the caller keeps owning them)."""
         self.config, self.clock = config, clock
-        self.model = load_model(config)
+        model_file = load_model_file(config)
+        self.model = folded_params(model_file.params, model_file.effects)
+        self.ff_effects = model_file.effects.only(("aero_load", "backlash"))  # inverted per step
         self.has_sensor = backend_has_sensor(config.sensor_backend) or sensor is not None
         self.fs_timeout = config.loop.failsafe_timeout_s
         self.dt = 1.0 / config.loop.rate_hz
@@ -183,6 +194,7 @@ class Bridge:
                                  u_min=lo if c.u_min_mm is None else c.u_min_mm,
                                  u_max=hi if c.u_max_mm is None else c.u_max_mm, w_max=wc.max_warp_deg,
                                  deadband=self._deadband(name), w0=self.mixer.wings[name].neutral_deg)
+            ctl.set_effects(self.ff_effects)
             self.wings[name] = WingState(wc, ctl, scal, ecal, setpoint=self.mixer.wings[name].neutral_deg)
         self.servo, self.sensor = servo, sensor
         self._owns_devices = servo is None
@@ -423,7 +435,7 @@ class Bridge:
                 measured = self._measure(name, w, now)
                 sp = row["setpoint"] = self.tuning.setpoint(name, now, setpoints[name])  # calibration excitation
                 self.tuning.before_step(name)  # pre-tension estimate into the feed-forward
-                cmd = w.ctl.step(sp, self.tuning.measurement(name, measured), dt)
+                cmd = w.ctl.step(sp, self.tuning.measurement(name, measured), dt, airspeed=self.link.airspeed)
                 self.tuning.after_step(name, now, cmd.u_cmd, measured, dt)
                 pulse = w.servo_cal.pulse_for_mm(cmd.u_cmd)
                 row.update(ff=cmd.ff, pi=cmd.pi, u=cmd.u_cmd, warp=measured, pulse=pulse)

@@ -18,12 +18,49 @@ operators, so an augmented model and its compensator cancel exactly.
 
 from __future__ import annotations
 
-from model.boucwen import Stepper
-from model.effects import dynamic_pressure_kpa
+from dataclasses import replace
+
+from model.boucwen import BoucWenParams, Stepper
+from model.effects import Effects, dynamic_pressure_kpa
 from model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
 INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")
+
+
+def folded_params(params: BoucWenParams, effects: Effects) -> BoucWenParams:
+    """Bouc-Wen parameters with friction and pre-tension folded in exactly: the rigged wing's model
+    u = offset + f(w) / gain with az scaled by the friction factor."""
+    g, off, s = effects.pretension_gain, effects.pretension_offset_mm, effects.friction_scale
+    if g == 1.0 and off == 0.0 and s == 1.0:
+        return params
+    return replace(params, a1=params.a1 / g, a2=params.a2 / g, a3=params.a3 / g + off, az=params.az * s / g)
+
+
+def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float:
+    """Warp to ask of the unloaded model so that the aerodynamically loaded wing reaches w_sp."""
+    if airspeed is None or (effects.aero_gain_per_kpa == 0.0 and effects.aero_deg_per_kpa == 0.0):
+        return w_sp
+    q = float(dynamic_pressure_kpa(airspeed))
+    k = max(1.0 - effects.aero_gain_per_kpa * q, 0.05)
+    return (w_sp + effects.aero_deg_per_kpa * q) / k
+
+
+class BacklashInverse:
+    """Takes up a slack of ``width`` mm ahead of the motion: u +- width / 2 by the last direction."""
+
+    def __init__(self, width: float) -> None:
+        self.width = float(width)
+        self._dir = 1.0
+        self._prev: float | None = None
+
+    def step(self, u: float) -> float:
+        if self.width <= 0.0:
+            return u
+        if self._prev is not None and u != self._prev:
+            self._dir = 1.0 if u > self._prev else -1.0
+        self._prev = u
+        return u + self._dir * 0.5 * self.width
 
 
 class Compensator:
@@ -31,33 +68,13 @@ class Compensator:
 
     def __init__(self, plant: Plant, w0: float = 0.0, z0: float = 0.0) -> None:
         self.plant = plant
-        self.model = Stepper(plant.core_params(), w0=w0, z0=z0)
-        self._dir = 1.0
-        self._u_prev: float | None = None
-
-    def model_warp(self, w_sp: float, airspeed: float | None) -> float:
-        """Warp to ask of the Bouc-Wen model so that the loaded wing reaches w_sp."""
-        e = self.plant.effects
-        if airspeed is None or (e.aero_gain_per_kpa == 0.0 and e.aero_deg_per_kpa == 0.0):
-            return w_sp
-        q = float(dynamic_pressure_kpa(airspeed))
-        k = 1.0 - e.aero_gain_per_kpa * q
-        return (w_sp + e.aero_deg_per_kpa * q) / k if k > 0.05 else w_sp / 0.05
+        self.model = Stepper(folded_params(plant.params, plant.effects), w0=w0, z0=z0)
+        self.backlash = BacklashInverse(plant.effects.backlash_mm)
 
     def step(self, w_sp: float, airspeed: float | None = None) -> float:
-        e = self.plant.effects
-        u_model = self.model.inverse_step(self.model_warp(w_sp, airspeed))
-        x = u_model
-        if e.pretension_gain != 1.0 or e.pretension_offset_mm != 0.0:
-            x = x / e.pretension_gain + e.pretension_offset_mm
-        if e.backlash_mm > 0.0:
-            if self._u_prev is not None and x != self._u_prev:
-                self._dir = 1.0 if x > self._u_prev else -1.0
-            self._u_prev = x
-            x = x + self._dir * 0.5 * e.backlash_mm
-        return x
+        u = self.model.inverse_step(aero_inverse(w_sp, self.plant.effects, airspeed))
+        return self.backlash.step(u)
 
     def reset(self, w0: float = 0.0, z0: float = 0.0) -> None:
         self.model.reset(w0, z0)
-        self._u_prev = None
-        self._dir = 1.0
+        self.backlash = BacklashInverse(self.plant.effects.backlash_mm)

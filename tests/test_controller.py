@@ -199,3 +199,25 @@ def test_live_model_change_is_bumpless():
 def test_unknown_mode_is_refused():
     with pytest.raises(ValueError):
         WingController(P, mode="pid")
+
+
+def test_a_model_files_aero_load_and_backlash_are_inverted_in_the_feed_forward():
+    """ff through an augmented model: the loaded, slack wing still reaches the setpoint."""
+    from model.effects import Effects
+    from model.excitation import filtered_random
+    from model.plant import Plant, PlantStepper
+
+    effects = Effects(aero_gain_per_kpa=1.5, aero_deg_per_kpa=2.0, backlash_mm=0.3)
+    t = np.arange(0, 10, 0.01)
+    w_sp = filtered_random(t, 1.0, 3.0, offset=7.0, seed=5)
+    v = 12.0
+    errs = {}
+    for aware in (True, False):
+        ctl = WingController(BoucWenParams.paper(), mode="ff", w0=w_sp[0], u_min=-20, u_max=30)
+        if aware:
+            ctl.set_effects(effects)
+        wing = PlantStepper(Plant(BoucWenParams.paper(), effects), t[0], ctl.step(w_sp[0], None, 0.01, v).u_cmd)
+        e = [wing.step(t[k], ctl.step(w_sp[k], None, 0.01, v).u_cmd, v)[0] - w_sp[k] for k in range(1, t.size)]
+        errs[aware] = float(np.sqrt(np.mean(np.square(e[100:]))))
+    assert errs[True] < 0.03
+    assert errs[False] > 5 * errs[True]
