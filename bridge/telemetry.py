@@ -21,6 +21,11 @@ and QGroundControl's MAVLink Inspector, logged by ArduPilot as NVAL):
 | ``WB_mode`` | - | control mode: 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe hold |
 | ``WB_aspd`` | m/s | airspeed the bridge uses |
 | ``WB_lat`` | ms | age of the latest servo output message at use |
+| ``WB_cal`` / ``WB_cal_pct`` | - / % | self-calibration state and progress (``bridge.calibrate``) |
+| ``L_ad_off`` / ``R_ad_off`` | mm | online pre-tension offset estimate |
+| ``L_ad_gain`` / ``R_ad_gain`` | - | online pre-tension gain estimate |
+| ``L_ad_st`` / ``R_ad_st`` | - | adaptation state |
+| ``L_ad_drft`` / ``R_ad_drft`` | deg | sensor zero drift estimate (when enabled) |
 """
 
 from __future__ import annotations
@@ -49,6 +54,16 @@ NAMES = {
     "WB_mode": "mode: 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe",
     "WB_aspd": "airspeed used, m/s",
     "WB_lat": "servo message age, ms",
+    "WB_cal": "self-calibration: 0 idle, 1 exciting, 2 fitting, 3 applied, 4 kept old, 5 aborted",
+    "WB_cal_pct": "self-calibration progress, %",
+    "L_ad_off": "left adapted pre-tension offset, mm",
+    "R_ad_off": "right adapted pre-tension offset, mm",
+    "L_ad_gain": "left adapted pre-tension gain",
+    "R_ad_gain": "right adapted pre-tension gain",
+    "L_ad_st": "left adaptation state (0 off, 1 adapting, 2-4 frozen: excitation, sensor, residual)",
+    "R_ad_st": "right adaptation state (0 off, 1 adapting, 2-4 frozen: excitation, sensor, residual)",
+    "L_ad_drft": "left adapted sensor zero drift, deg",
+    "R_ad_drft": "right adapted sensor zero drift, deg",
 }
 MODE_CODES = {"open": 0.0, "pi": 1.0, "ff": 2.0, "ff+pi": 3.0, "failsafe": -1.0}
 
