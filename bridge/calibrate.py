@@ -35,7 +35,6 @@ import enum
 import json
 import logging
 import math
-import os
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -44,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from bridge.atomic import write_text_atomic
 from bridge.mavlink_env import mavlink
 from bridge.params import ParamSpec
 from model.adapt import AdaptConfig, PretensionEstimator, fold_pretension
@@ -146,13 +146,8 @@ class CalStore:
         doc = {"format": FORMAT, "wings": {
             w: {"current": c.to_dict(), "previous": (p.to_dict() if (p := self.previous.get(w)) else None)}
             for w, c in self.current.items()}}
-        tmp = self.path.with_name(self.path.name + ".tmp")
         try:
-            with tmp.open("w", encoding="utf-8") as f:
-                json.dump(doc, f, indent=1)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
+            write_text_atomic(self.path, json.dumps(doc, indent=1))
         except OSError as e:
             log.error("cannot save calibration to %s: %s", self.path, e)
 

@@ -14,12 +14,12 @@ import csv
 import logging
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from bridge import atomic
 from bridge.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -170,19 +170,7 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     d = p.parent if str(p.parent) else Path(".")
     if not d.is_dir():
         raise UserError(f"{p}: directory {d} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=d)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    atomic.write_text_atomic(p, text)
 
 
 def write_csv_atomic(path: str | os.PathLike, columns: dict[str, np.ndarray], fmt: str = "%.9g") -> None:

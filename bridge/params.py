@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bridge.atomic import write_text_atomic
+
 log = logging.getLogger(__name__)
 
 FORMAT = "warpbridge-params/1"
@@ -250,7 +252,8 @@ class ParamStore:
             changed = {n: v for n, v in self._values.items() if v != self.specs[n].default}
         doc = {"format": FORMAT, "params": changed}
         try:
-            _write_atomic(self.path, json.dumps(doc, indent=1, sort_keys=True) + "\n", self._temp_prefix())
+            write_text_atomic(self.path, json.dumps(doc, indent=1, sort_keys=True) + "\n",
+                              temp_prefix=self._temp_prefix(), make_dirs=True)
         except OSError as e:
             self.save_errors += 1
             log.error("could not save parameters to %s: %s", self.path, e)
@@ -290,29 +293,3 @@ class ParamStore:
             self._thread = None
 
 
-def _write_atomic(path: Path, text: str, temp_prefix: str) -> None:
-    folder = path.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    tmp = folder / f"{temp_prefix}{os.getpid()}-{threading.get_ident()}"
-    try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        raise
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return  # platforms without directory fds
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)

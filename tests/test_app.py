@@ -3,23 +3,17 @@
 from __future__ import annotations
 
 import csv
-import socket
 import threading
 import time
 from pathlib import Path
 
 import pytest
+from helpers import free_udp_port
 
 from bridge.app import run_bridge
 from bridge.config import load_config
 from bridge.mavlink_env import mavlink, mavutil
 from hw.loop import LoopBackend
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def write_config(tmp_path: Path, port: int) -> Path:

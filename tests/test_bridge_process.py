@@ -13,7 +13,6 @@ import os
 import random
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -23,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers import free_udp_port
 
 from bridge.controller import straight_line
 from bridge.mavlink_env import mavlink, mavutil
@@ -35,12 +35,6 @@ COUNTS, DEG = (100.0, 1000.0), (0.0, 15.0)
 SENSOR_CH = {"left": 2, "right": 3}
 SERVO_CH = {"left": 0, "right": 1}
 REPO = Path(__file__).resolve().parents[1]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(cond: Callable[[], Any], timeout: float = 10.0, step: float = 0.02) -> Any:

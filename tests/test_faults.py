@@ -13,6 +13,7 @@ import tty
 from pathlib import Path
 
 import pytest
+from helpers import ManualClock, free_udp_port
 
 from bridge.app import Bridge
 from bridge.config import load_config
@@ -22,12 +23,6 @@ from sitl.maestro_emu import MaestroEmulator
 
 DT = 0.01
 LIMITS_US = (1100.0, 1900.0)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 CONFIG = """
@@ -64,14 +59,6 @@ servo_channel = 1
 pulse_min_us = 1100
 pulse_max_us = 1900
 """
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 20.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 class UdpFc:
@@ -148,7 +135,7 @@ class Rig:
         cfg = tmp_path / "wb.toml"
         cfg.write_text(CONFIG.format(connection=self.fc.connection, servo=servo, sensor=sensor,
                                      left_sensor="sensor_channel = 5" if sensor_counts is not None else ""))
-        self.clock = Clock()
+        self.clock = ManualClock(20.0)
         self.loop = LoopBackend(counts=sensor_counts, clock=self.clock) if servo == "loop:" else None
         self.bridge = Bridge(load_config(cfg), servo=self.loop, sensor=self.loop if sensor_counts else None,
                              clock=self.clock)

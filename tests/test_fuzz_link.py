@@ -19,6 +19,7 @@ import struct
 from pathlib import Path
 
 import pytest
+from helpers import ManualClock, free_udp_port
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -31,12 +32,6 @@ LIMITS = {0: (1100.0, 1900.0), 1: (1200.0, 1800.0)}  # servo channel -> configur
 DT = 0.01  # 100 Hz loop
 RECOVERY_S = 0.5
 FUZZ_EXAMPLES = int(os.environ.get("WB_FUZZ_EXAMPLES", "150"))
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 CONFIG = """
@@ -78,14 +73,6 @@ pulse_zero_us = 1300
 """
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 class Rig:
     """The bridge in lock-step: ``send`` bytes from the 'FC' socket, ``tick`` advances 10 ms."""
 
@@ -97,7 +84,7 @@ class Rig:
             (tmp_path / "key").write_text("fuzzing passphrase\n")
             extra = 'signing_key_file = "key"'
         cfg.write_text(CONFIG.format(port=port, signing=extra))
-        self.clock = Clock()
+        self.clock = ManualClock(100.0)
         self.servo = LoopBackend(clock=self.clock)
         self.bridge = Bridge(load_config(cfg), servo=self.servo, clock=self.clock)
         assert self.bridge.link.open()

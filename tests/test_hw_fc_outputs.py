@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import math
-import socket
 from types import SimpleNamespace
 
 import pytest
+from helpers import free_udp_port
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -127,14 +127,8 @@ def test_open_servo_takes_ids_and_autopilot_from_the_sender(conn):
     assert isinstance(out, hw.ServoOutput)
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_command_long_arrives_over_a_real_pymavlink_link():
-    port = _free_udp_port()
+    port = free_udp_port()
     fc = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     bridge = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=191)
     try:

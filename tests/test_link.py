@@ -7,16 +7,11 @@ import socket
 import time
 
 import pytest
+from helpers import free_udp_port
 
 from bridge.link import FcLink
 from bridge.mavlink_env import mavlink, mavutil
 from bridge.telemetry import Telemetry
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class FakeClock:

@@ -7,11 +7,11 @@ library cannot be loaded on this machine.
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
 import pytest
+from helpers import free_udp_port
 
 from bridge.link import FcLink
 from bridge.param_server import ParamServer
@@ -26,12 +26,6 @@ try:
     from mavsdk.plugins.param import Param, ParamError, ParamResult, ProtocolVersion
 except (ImportError, OSError) as e:  # the native library did not load
     pytest.skip(f"mavsdk native library unusable here: {e}", allow_module_level=True)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(cond, timeout: float = 10.0) -> bool:

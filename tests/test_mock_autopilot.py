@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -11,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import free_udp_port
 
 from bridge.link import FcLink
 from bridge.mavlink_env import mavlink, mavutil
@@ -20,12 +20,6 @@ from bridge.telemetry import Telemetry
 from sitl.mock_autopilot import CsvRoll, MockAutopilot, SineRoll, load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def recv(conn, types, timeout: float = 3.0, cond=None):

@@ -21,6 +21,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from helpers import ManualClock, free_udp_port
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -33,12 +34,6 @@ from hw.loop import LoopBackend
 
 REPO = Path(__file__).resolve().parents[1]
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 CONFIG = """
@@ -61,14 +56,6 @@ servo_channel = 1
 """
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 10.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 class Rig:
     """The bridge in lock-step with a ground station (255/190) on real loopback UDP."""
 
@@ -76,7 +63,7 @@ class Rig:
         port = free_udp_port()
         cfg = tmp_path / "wb.toml"
         cfg.write_text(CONFIG.format(port=port))
-        self.clock = Clock()
+        self.clock = ManualClock(10.0)
         self.bridge = Bridge(load_config(cfg), servo=LoopBackend(), clock=self.clock)
         assert self.bridge.link.open()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -6,7 +6,6 @@ import json
 import os
 import random
 import signal
-import socket
 import subprocess
 import sys
 import textwrap
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import free_udp_port
 
 from bridge.link import FcLink
 from bridge.mavlink_env import mavlink, mavutil
@@ -172,12 +172,6 @@ def test_kill_during_writes_never_corrupts(tmp_path):
 
 
 # ---------------------------------------------------------------------- server over MAVLink
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Bridge:

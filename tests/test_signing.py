@@ -10,6 +10,7 @@ import socket
 from pathlib import Path
 
 import pytest
+from helpers import ManualClock, free_udp_port
 
 from bridge.app import Bridge
 from bridge.config import load_config
@@ -21,12 +22,6 @@ from hw.loop import LoopBackend
 KEY = key_from_passphrase("correct horse battery staple")
 WRONG = key_from_passphrase("incorrect horse battery staple")
 FC, GCS, OTHER_GCS = (1, 1), (255, 190), (200, 190)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 # ---------------------------------------------------------------------------- the key file
@@ -89,14 +84,6 @@ servo_channel = 1
 """
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 50.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 class Peer:
     """Packs frames as one sender, signing with ``key`` (None: unsigned)."""
 
@@ -120,7 +107,7 @@ class Rig:
         (tmp_path / "signing.key").chmod(0o600)
         cfg = tmp_path / "wb.toml"
         cfg.write_text(CONFIG.format(port=port, accept=str(accept_unsigned_from_fc).lower(), allow=allow))
-        self.clock = Clock()
+        self.clock = ManualClock(50.0)
         self.servo = LoopBackend(clock=self.clock)
         self.bridge = Bridge(load_config(cfg), servo=self.servo, clock=self.clock)
         assert self.bridge.link.open()
