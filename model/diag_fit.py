@@ -28,13 +28,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from model.boucwen import BoucWenParams, forward
+from model.boucwen import BoucWenParams, forward, rest_warp
+from model.diag_kernels import forward_run_capped
 from model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
 from model.identify import reversal_indices, warmup_end
 
 log = logging.getLogger(__name__)
 
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
+MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale")
 
 
@@ -58,8 +60,8 @@ SCORE_PATTERN = (1, 4, 6, 9)  # of 10 blocks: 40 % scored, spread over the log, 
 def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float | None = None) -> Split:
     """Alternating contiguous blocks: blocks 1, 4, 6, 9 of 10 scored, the rest trained on.
 
-    Scored blocks are cut into chunks of ``chunk_s`` (default: a tenth of a block, at least 1 s
-    and at least 20 samples) for the paired tests."""
+    Scored blocks are cut into chunks of ``chunk_s`` (default: about 96 chunks, each between
+    5 samples and 1 s long) for the paired tests."""
     n = t.size
     start = warmup_end(u)
     edges = np.linspace(t[start], t[-1], n_blocks + 1)
@@ -71,10 +73,10 @@ def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float 
     is_score = np.isin(pos, [p for p in SCORE_PATTERN if p < n_blocks])
     score[after & is_score] = True
     train[after & ~is_score] = True
-    span = (t[-1] - t[start]) / n_blocks
     fs = (n - 1) / max(t[-1] - t[0], 1e-12)
-    if chunk_s is None:
-        chunk_s = max(1.0, span / 10.0, 20.0 / fs)
+    if chunk_s is None:  # ~96 chunks, 5 samples to 1 s long
+        scored_s = (t[-1] - t[start]) * len(SCORE_PATTERN) / n_blocks
+        chunk_s = min(1.0, max(scored_s / 96.0, 5.0 / fs))
     from model.diag_stats import chunk_ids
 
     chunks = chunk_ids(score, t, chunk_s)
@@ -146,6 +148,26 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
     return []
 
 
+def _reachable(p: BoucWenParams, x: np.ndarray) -> bool:
+    """False when the input clearly leaves the range where u grows with w (the quadratic's turning point,
+    with z at its saturation): the forward map would saturate on most samples."""
+    if p.a1 == 0.0:
+        return True
+    w_turn = -p.a2 / (2.0 * p.a1)
+    try:
+        z_hi, z_lo = p.z_saturation(1.0 if w_turn > 0 else -1.0)
+    except (ValueError, ZeroDivisionError, OverflowError):
+        return True
+    zs = [v for v in (z_hi, z_lo) if np.isfinite(v)]
+    if not zs:
+        return True
+    u_turn = p.a1 * w_turn ** 2 + p.a2 * w_turn + p.a3
+    margin = abs(p.az) * max(abs(v) for v in zs)
+    if p.a1 < 0:  # u has a maximum
+        return float(np.max(x)) <= u_turn + margin
+    return float(np.min(x)) >= u_turn - margin
+
+
 def linear_fields(name: str) -> tuple[str, ...]:
     """The effect's parameters that enter the output affinely (solved by least squares)."""
     return tuple(f for f in EFFECT_FIELDS[name][0] if f in LINEAR_FIELDS)
@@ -195,22 +217,39 @@ class Problem:
         self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self.evaluations = 0
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
+        # the nominal model is run uncapped, exactly as ``predict`` would, whatever it saturates
+        x = apply_input_effects(effects, self.t, self.u)
+        self._core[self._key(effects)] = forward(self._core_params(effects), x, z0=self.z0)[0]
+
+    @staticmethod
+    def _key(eff: Effects) -> tuple:
+        return tuple(getattr(eff, f) for f in INPUT_FIELDS)
+
+    def _core_params(self, eff: Effects) -> BoucWenParams:
+        if eff.friction_scale == 1.0:
+            return self.params
+        return replace(self.params, az=self.params.az * eff.friction_scale)
 
     # -- prediction --
     def core(self, eff: Effects) -> np.ndarray:
         """Bouc-Wen forward warp for the input-side effects and friction of ``eff`` (cached)."""
-        key = tuple(getattr(eff, f) for f in INPUT_FIELDS)
+        key = self._key(eff)
         hit = self._core.get(key)
         if hit is not None:
             self._core.move_to_end(key)
             return hit
         x = apply_input_effects(eff, self.t, self.u)
-        p = self.params if eff.friction_scale == 1.0 else replace(self.params, az=self.params.az * eff.friction_scale)
-        w, _, _ = forward(p, x, z0=self.z0)
+        p = self._core_params(eff)
         self.evaluations += 1
+        w = np.empty_like(x)
+        z = np.empty_like(x)
+        cap = max(10, int(MAX_SATURATED * x.size))
+        if not _reachable(p, x) or forward_run_capped(p.to_array(), x, rest_warp(p, float(x[0]), self.z0), self.z0,
+                                                      w, z, cap) < 0:
+            w[:] = np.nan  # beyond the model's monotone range: not a candidate
         self._core[key] = w
         if len(self._core) > 8:
-            self._core.popitem(last=False)
+            self._core.popitem(last=False)  # (the nominal may go too: it is only needed once)
         return w
 
     def _lag(self, x: np.ndarray, tau: float) -> np.ndarray:
@@ -252,9 +291,10 @@ class Problem:
 
     def solve_linear(self, eff: Effects, free: tuple[str, ...]) -> tuple[Effects, np.ndarray]:
         """Least-squares values of the free linear fields on the training samples."""
-        free = tuple(f for f in free if f == "drift_deg_s" or self.q is not None)
+        # in the column order of ``affine``
+        free = tuple(f for f in LINEAR_FIELDS if f in free and (f == "drift_deg_s" or self.q is not None))
         base, basis = self.affine(eff, free)
-        if not free:
+        if not free or not np.all(np.isfinite(base)):
             return eff, base
         m = self.split.train
         y = self.w[m] - base[m]

@@ -1,0 +1,111 @@
+"""``warpbridge diagnose LOG.csv --model MODEL.json --report REPORT.json``: why the wing disobeys its model.
+
+Free-runs the model on the logged tendon input, splits the residual by
+hysteresis phase, warp level, frequency band, time and airspeed, fits every
+effect of the vocabulary as an augmentation on part of the log and scores it on
+the rest, and names the effects that explain the gap (``[]`` when it is only
+noise and the model's known error). Writes REPORT.json, prints a summary,
+optionally writes the augmented model (``--out-model``, usable by ``predict``
+and the bridge's feed-forward) and a figure (``--plot``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from bridge.errors import UserError
+from bridge.logfile import read_log, write_text_atomic
+from bridge.modelio import load_model, save_model
+from model.diagnose import DiagnoseOptions, diagnose
+from model.effects import EFFECT_NAMES
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="CSV log with columns t,u,warp[,airspeed] (or a bridge log with --wing)")
+    p.add_argument("--model", required=True, help="MODEL.json the log is compared with (or 'paper')")
+    p.add_argument("--report", required=True, help="REPORT.json to write")
+    p.add_argument("--out-model", help="write the augmented model (effects set) to this MODEL.json")
+    p.add_argument("--plot", help="PNG: residual by phase and band, loops and time series before/after")
+    p.add_argument("--wing", choices=("left", "right"), help="read this wing's columns of a bridge log")
+    p.add_argument("--effects", default=",".join(EFFECT_NAMES),
+                   help="comma-separated candidate effects (default: all)")
+    p.add_argument("--max-effects", type=int, default=3, help="most effects named at once (default 3)")
+    p.add_argument("--alpha", type=float, default=0.01,
+                   help="family-wise significance level of the held-out tests (default 0.01)")
+    p.add_argument("--quiet", action="store_true", help="no summary on the terminal, only the file names")
+
+
+def _options(args: argparse.Namespace) -> DiagnoseOptions:
+    names = tuple(n.strip() for n in args.effects.split(",") if n.strip())
+    bad = [n for n in names if n not in EFFECT_NAMES]
+    if bad:
+        raise UserError(f"unknown effect(s) {', '.join(bad)} (known: {', '.join(EFFECT_NAMES)})")
+    if not names:
+        raise UserError("--effects lists no effect")
+    if not 1 <= args.max_effects <= len(EFFECT_NAMES):
+        raise UserError(f"--max-effects must lie between 1 and {len(EFFECT_NAMES)}")
+    if not 0 < args.alpha < 0.5:
+        raise UserError("--alpha must lie between 0 and 0.5")
+    return DiagnoseOptions(max_effects=args.max_effects, alpha=args.alpha, effects=names)
+
+
+def _json_safe(x):
+    """Replace NaN/inf by None so that the report is strict JSON."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if hasattr(x, "item"):  # numpy scalar
+        return _json_safe(x.item())
+    return x
+
+
+def main(args: argparse.Namespace) -> int:
+    opts = _options(args)
+    for path in (args.report, args.out_model, args.plot):
+        if path and not (Path(path).parent if str(Path(path).parent) else Path(".")).is_dir():
+            raise UserError(f"{path}: directory {Path(path).parent} does not exist")
+    mf = load_model(args.model)
+    data = read_log(args.log, wing=args.wing)
+    for note in data.notes:
+        print(f"note: {note}", file=sys.stderr)
+    if "aero_load" in mf.effects.active() and data.airspeed is None:
+        print("note: the model has aero_load but the log has no airspeed column: assuming no airflow",
+              file=sys.stderr)
+    t0 = time.perf_counter()
+    try:
+        d = diagnose(data.t, data.u, data.warp, data.airspeed, mf, opts)
+    except ValueError as e:
+        raise UserError(f"{args.log}: {e}") from None
+    elapsed = time.perf_counter() - t0
+    rep = d.report
+    rep["log"] = {"file": Path(args.log).name, "wing": args.wing, "samples": len(data), "notes": data.notes,
+                  "airspeed": data.airspeed is not None}
+    rep["model_file"] = Path(args.model).name if args.model != "paper" else "paper"
+    rep["created"] = datetime.now(UTC).isoformat(timespec="seconds")
+    rep["seconds"] = elapsed
+    if args.out_model:
+        d.model.meta["diagnosed_log"] = Path(args.log).name
+        save_model(args.out_model, d.model)
+        rep["out_model"] = Path(args.out_model).name
+    write_text_atomic(args.report, json.dumps(_json_safe(rep), indent=2, allow_nan=False) + "\n")
+    if args.plot:
+        from bridge.diagnose_plot import plot_diagnosis
+
+        plot_diagnosis(args.plot, d, title=f"{Path(args.log).name} vs {rep['model_file']}")
+    if not args.quiet:
+        print(f"diagnosed {Path(args.log).name} ({len(data)} samples, {data.t[-1] - data.t[0]:.1f} s) "
+              f"against {rep['model_file']} in {elapsed:.1f} s")
+        for line in rep["summary"]:
+            print(line)
+    wrote = [args.report] + [p for p in (args.out_model, args.plot) if p]
+    print(f"wrote {', '.join(wrote)}")
+    return 0

@@ -1,0 +1,264 @@
+"""warpbridge diagnose: each augmentation recovers its parameter, noise gives [], bad input gives one-line errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bridge.cli import main as cli
+from bridge.logfile import write_csv_atomic
+from bridge.modelio import load_model, save_model
+from model.boucwen import BoucWenParams, inverse
+from model.diag_fit import Problem, make_split
+from model.diag_stats import paired_gain
+from model.diag_where import PHASES, phase_labels
+from model.diagnose import diagnose
+from model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from model.excitation import filtered_random
+from model.modelfile import FitQuality, ModelFile
+from model.plant import Plant
+
+FS = 200.0
+DURATION = 20.0
+NOISE = 0.03
+P = BoucWenParams.paper()
+
+# an effect of each kind, large enough to matter (several times the noise), and a tolerance on its recovery
+TRUE = {
+    "delay": (Effects(delay_s=0.04), 0.1),
+    "rate_limit": (Effects(rate_mm_s=6.0), 0.1),
+    "backlash": (Effects(backlash_mm=0.15), 0.1),
+    "friction": (Effects(friction_scale=1.3), 0.05),
+    "pretension": (Effects(pretension_offset_mm=0.2, pretension_gain=0.93), 0.1),
+    "sensor_lag": (Effects(sensor_tau_s=0.05), 0.1),
+    "drift": (Effects(drift_deg_s=0.01), 0.1),
+    "aero_load": (Effects(aero_gain_per_kpa=0.5, aero_deg_per_kpa=2.0), 0.15),
+}
+
+
+def make_log(effects: Effects, seed: int = 0, duration: float = DURATION):
+    t = np.arange(int(duration * FS)) / FS
+    w_ref = filtered_random(t, 1.0, 4.5, 7.0, seed=seed)
+    u, _ = inverse(P, w_ref)
+    v = filtered_random(t, 0.1, 6.0, 14.0, seed=seed + 100)
+    _, w = Plant(P, effects).simulate(t, u, v)
+    w = w + NOISE * np.random.default_rng(seed + 1).standard_normal(t.size)
+    return t, u, w, v
+
+
+def nominal_model() -> ModelFile:
+    return ModelFile(params=P, fit=FitQuality(train_rms_deg=NOISE, heldout_rms_deg=NOISE, noise_deg=NOISE))
+
+
+@pytest.mark.parametrize("name", EFFECT_NAMES)
+def test_each_augmentation_recovers_its_parameters(name):
+    eff, tol = TRUE[name]
+    t, u, w, v = make_log(eff, seed=3)
+    prob = Problem(t, u, w, v, P, Effects())
+    fit = prob.fit((name,))
+    for f in EFFECT_FIELDS[name][0]:
+        want, got = getattr(eff, f), getattr(fit.effects, f)
+        neutral = EFFECT_FIELDS[name][1][EFFECT_FIELDS[name][0].index(f)]
+        assert abs(got - want) <= tol * max(abs(want - neutral), abs(want) * 0.05), (f, got, want)
+    # and the augmented model predicts the held-out blocks down to the noise
+    assert math.sqrt(fit.score_mse) < 1.3 * NOISE
+
+
+def test_a_joint_fit_returns_the_effects_its_prediction_used():
+    eff = Effects(drift_deg_s=0.01, aero_gain_per_kpa=0.5, aero_deg_per_kpa=2.0)
+    t, u, w, v = make_log(eff, seed=8)
+    prob = Problem(t, u, w, v, P, Effects())
+    fit = prob.fit(("drift", "aero_load"))
+    np.testing.assert_allclose(prob.predict(fit.effects), fit.w_pred, atol=1e-9)
+    assert fit.effects.drift_deg_s == pytest.approx(0.01, rel=0.1)
+    assert fit.effects.aero_gain_per_kpa == pytest.approx(0.5, rel=0.15)
+
+
+def test_problem_predicts_exactly_what_the_plant_simulates():
+    eff = Effects(delay_s=0.02, rate_mm_s=20.0, backlash_mm=0.05, friction_scale=1.1, pretension_offset_mm=0.1,
+                  pretension_gain=0.97, sensor_tau_s=0.03, drift_deg_s=0.002, aero_gain_per_kpa=0.3,
+                  aero_deg_per_kpa=0.8)
+    t, u, w, v = make_log(Effects(), seed=4, duration=5.0)
+    prob = Problem(t, u, w, v, P, Effects())
+    _, expected = Plant(P, eff).simulate(t, u, v)
+    np.testing.assert_allclose(prob.predict(eff), expected, rtol=0, atol=1e-9)
+
+
+def test_split_alternates_blocks_and_scores_the_end():
+    t, u, _, _ = make_log(Effects(), duration=10.0)
+    sp = make_split(t, u)
+    assert not np.any(sp.train & sp.score)
+    assert sp.score[-1] and not sp.score[sp.start]
+    frac = sp.score.sum() / (sp.train.sum() + sp.score.sum())
+    assert 0.35 < frac < 0.45
+    assert sp.chunks.max() + 1 >= 20
+
+
+def test_phase_labels_on_a_triangle():
+    u = np.concatenate([np.linspace(0, 10, 101), np.linspace(10, 0, 101)[1:], np.linspace(0, 10, 101)[1:]])
+    lab = phase_labels(u)
+    assert PHASES[lab[50]] == "loading"
+    assert PHASES[lab[103]] == "after reversal to unloading"  # 10 mm span: the first 1 mm after the peak
+    assert PHASES[lab[150]] == "unloading"
+    assert PHASES[lab[203]] == "after reversal to loading"
+
+
+def test_paired_gain_sees_a_real_gain_and_not_an_identical_model():
+    rng = np.random.default_rng(0)
+    e1 = rng.standard_normal(4000) * 0.03
+    e0 = e1 + 0.05 * np.sin(np.arange(4000) / 30)
+    ids = np.repeat(np.arange(40), 100)
+    assert paired_gain(e0, e1, ids).p_value < 1e-6
+    assert paired_gain(e1, e1, ids).p_value == 1.0
+
+
+def test_noise_only_gives_an_empty_verdict():
+    t, u, w, v = make_log(Effects(), seed=7)
+    d = diagnose(t, u, w, v, nominal_model())
+    assert d.verdict == []
+    rep = d.report
+    assert rep["verdict"] == []
+    assert {c["effect"] for c in rep["candidates"]} == set(EFFECT_NAMES)
+    assert all(not c["in_verdict"] for c in rep["candidates"])
+    assert d.model.effects.active() == []
+
+
+@pytest.mark.parametrize("name", ["backlash", "sensor_lag"])
+def test_a_single_effect_is_named_and_its_gap_closed(name):
+    eff, _ = TRUE[name]
+    t, u, w, v = make_log(eff, seed=11)
+    d = diagnose(t, u, w, v, nominal_model())
+    assert d.verdict == [name]
+    assert d.model.effects.active() == [name]
+    assert d.report["shrinkage"]["gap_closed"] > 0.9
+    assert d.report["where"]["dominant"] in ("phase", "amplitude", "band", "time", "airspeed")
+
+
+def test_diagnosis_is_relative_to_the_effects_the_model_carries():
+    carried = Effects(delay_s=0.04)
+    t, u, w, v = make_log(carried.merged(Effects(drift_deg_s=0.01)), seed=12)
+    mf = nominal_model()
+    mf.effects = carried
+    d = diagnose(t, u, w, v, mf)
+    assert d.verdict == ["drift"]
+    assert d.model.effects.delay_s == pytest.approx(0.04)
+
+
+# ---- the command ---------------------------------------------------------------------------------
+
+def write_model(path, effects: Effects | None = None) -> None:
+    mf = nominal_model()
+    mf.effects = effects or Effects()
+    save_model(path, mf)
+
+
+def test_command_writes_report_augmented_model_and_plot(tmp_path, capsys):
+    t, u, w, v = make_log(TRUE["drift"][0], seed=5)
+    log = tmp_path / "field.csv"
+    write_csv_atomic(log, {"t": t, "u": u, "warp": w, "airspeed": v})
+    write_model(tmp_path / "model.json")
+    rc = cli(["diagnose", str(log), "--model", str(tmp_path / "model.json"), "--report", str(tmp_path / "r.json"),
+              "--out-model", str(tmp_path / "aug.json"), "--plot", str(tmp_path / "r.png")])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "verdict: drift" in out
+    rep = json.loads((tmp_path / "r.json").read_text())
+    for key in ("verdict", "where", "candidates", "shrinkage"):
+        assert key in rep
+    assert rep["verdict"] == ["drift"]
+    assert rep["where"]["dominant"] in rep["where"]["scores"]
+    aug = load_model(tmp_path / "aug.json")
+    assert aug.effects.active() == ["drift"]
+    assert (tmp_path / "r.png").stat().st_size > 10_000
+    # predict with the augmented model closes the gap on the same log
+    rc = cli(["predict", str(log), "--model", str(tmp_path / "aug.json"), "-o", str(tmp_path / "p.csv")])
+    assert rc == 0
+    wp = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 1]
+    assert np.sqrt(np.mean((wp - w) ** 2)) < 1.3 * NOISE
+
+
+def test_command_reads_a_bridge_log(tmp_path):
+    t, u, w, v = make_log(Effects(), seed=6, duration=12.0)
+    nan = np.full(t.size, np.nan)
+    log = tmp_path / "bridge.csv"
+    write_csv_atomic(log, {"t": t, "airspeed": v, "left_setpoint": nan, "left_u": u, "left_warp": w,
+                           "right_u": u, "right_warp": nan})
+    write_model(tmp_path / "model.json")
+    rc = cli(["diagnose", str(log), "--wing", "left", "--model", str(tmp_path / "model.json"),
+              "--report", str(tmp_path / "r.json"), "--quiet"])
+    assert rc == 0
+    assert json.loads((tmp_path / "r.json").read_text())["verdict"] == []
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("warpbridge diagnose: error:")
+    assert "\n" not in err and "Traceback" not in err
+    return err
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("t,u\n0,1\n1,2\n", "missing column"),
+    ("t,u,warp\n0,1,x\n", "not a number"),
+    ("", "empty"),
+    ("t,u,warp\n" + "".join(f"{k * 0.01},{1 + (k % 7)},{k % 5}\n" for k in range(60)) + "0,1,1\n", "backwards"),
+    ("t,u,warp\n" + "".join(f"{k * 0.01},3.0,{k % 5}\n" for k in range(200)), "never changes"),
+])
+def test_malformed_logs_give_one_line_errors(tmp_path, capsys, content, needle):
+    log = tmp_path / "bad.csv"
+    log.write_text(content)
+    write_model(tmp_path / "model.json")
+    rc = cli(["diagnose", str(log), "--model", str(tmp_path / "model.json"), "--report", str(tmp_path / "r.json")])
+    assert rc != 0
+    assert needle in _one_line_error(capsys)
+    assert not (tmp_path / "r.json").exists()
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("{not json", "not valid JSON"),
+    ('{"format": "warpbridge-model/9", "params": {}}', "unsupported model format"),
+    ('{"format": "warpbridge-model/1"}', "no \"params\""),
+    ('{"format": "warpbridge-model/1", "params": {"a1": 0}}', "lack"),
+    ('[1, 2]', "JSON object"),
+])
+def test_malformed_models_give_one_line_errors(tmp_path, capsys, content, needle):
+    t, u, w, v = make_log(Effects(), duration=3.0)
+    log = tmp_path / "log.csv"
+    write_csv_atomic(log, {"t": t, "u": u, "warp": w})
+    (tmp_path / "model.json").write_text(content)
+    rc = cli(["diagnose", str(log), "--model", str(tmp_path / "model.json"), "--report", str(tmp_path / "r.json")])
+    assert rc != 0
+    assert needle in _one_line_error(capsys)
+
+
+def test_missing_files_and_bad_options_give_one_line_errors(tmp_path, capsys):
+    write_model(tmp_path / "model.json")
+    rc = cli(["diagnose", str(tmp_path / "nope.csv"), "--model", str(tmp_path / "model.json"),
+              "--report", str(tmp_path / "r.json")])
+    assert rc != 0 and "no such file" in _one_line_error(capsys)
+    t, u, w, _ = make_log(Effects(), duration=3.0)
+    write_csv_atomic(tmp_path / "log.csv", {"t": t, "u": u, "warp": w})
+    rc = cli(["diagnose", str(tmp_path / "log.csv"), "--model", str(tmp_path / "missing.json"),
+              "--report", str(tmp_path / "r.json")])
+    assert rc != 0 and "no such model file" in _one_line_error(capsys)
+    rc = cli(["diagnose", str(tmp_path / "log.csv"), "--model", str(tmp_path / "model.json"),
+              "--report", str(tmp_path / "r.json"), "--effects", "delay,wobble"])
+    assert rc != 0 and "wobble" in _one_line_error(capsys)
+    rc = cli(["diagnose", str(tmp_path / "log.csv"), "--model", str(tmp_path / "model.json"),
+              "--report", str(tmp_path / "no-such-dir" / "r.json")])
+    assert rc != 0 and "does not exist" in _one_line_error(capsys)
+
+
+def test_where_puts_a_drift_in_time_and_its_gap_in_the_late_cells():
+    t, u, w, v = make_log(TRUE["drift"][0], seed=13)
+    d = diagnose(t, u, w, v, nominal_model())
+    where = d.report["where"]
+    assert where["dominant"] == "time"
+    cells = where["time"]["cells"]
+    assert cells[-1]["rms_deg"] > 3 * cells[0]["rms_deg"]
+    assert where["time"]["trend_deg_per_s"] == pytest.approx(0.01, rel=0.2)
+    closed = [c["gap_closed"] for c in d.report["shrinkage"]["where"]["time"]["cells"] if c["gap_closed"] is not None]
+    assert closed and min(closed[-2:]) > 0.9
