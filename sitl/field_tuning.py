@@ -36,6 +36,7 @@ from model.effects import Effects
 from model.plant import Plant, PlantStepper
 from sitl.lockstep import SETTLE_S, FcOutputs, make_wings, rig_config, rms_error
 from sitl.scenarios import WINGS, Rig, make_scenario
+from sitl.sim_link import SimLinkBase
 from sitl.wing import SimWing, WingSpec
 
 log = logging.getLogger(__name__)
@@ -73,51 +74,22 @@ class DriftingPretension(PlantStepper):
         return super().step(t, self.gain_at(t) * (u - self.offset_at(t)), airspeed)
 
 
-class SimLink:
-    """The flight controller as ``Bridge`` sees an ``FcLink``, in lock-step."""
-
-    component_id = 191
+class SimLink(SimLinkBase):
+    """The flight controller as ``Bridge`` sees an ``FcLink``, in lock-step; messages put in ``inbox``
+    reach the bridge's parameter server and command handling on the next poll."""
 
     def __init__(self) -> None:
-        self.system_id = 1
-        self.autopilot = "ardupilot"
-        self.armed = False
-        self.fc_alive = True
-        self.servo_pwm: dict[int, float] = {}
-        self.servo_time: float | None = None
-        self.airspeed: float | None = None
-        self.acks: dict[int, int] = {}
-        self.mav = None
+        super().__init__()
         self.inbox: list = []
-        self.sent: list = []
-        self.texts: list[str] = []
-        self.named: dict[str, float] = {}
+        self.sent: list = []  # every message the bridge sent (COMMAND_ACK, PARAM_VALUE, ...)
 
     def poll(self) -> list:
         out, self.inbox = self.inbox, []
         return out
 
-    def send_named_float(self, name: str, value: float) -> bool:
-        self.named[name] = value
-        return True
-
-    def send_statustext(self, severity: int, text: str) -> bool:
-        self.texts.append(text)
-        log.debug("STATUSTEXT %s", text)
-        return True
-
     def send(self, msg) -> bool:
         self.sent.append(msg)
         return True
-
-    def set_servo_rate(self, rate_hz: float) -> None:
-        pass
-
-    def connect(self, timeout: float = 0.0) -> bool:
-        return True
-
-    def close(self) -> None:
-        pass
 
 
 class SimBoard:

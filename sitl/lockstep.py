@@ -37,6 +37,7 @@ from bridge.controller import MODES, WingController
 from model.boucwen import BoucWenParams
 from sitl.gust import Gust, GustSpec
 from sitl.scenarios import WINGS, Rig, Scenario, make_scenario
+from sitl.sim_link import SimLinkBase
 from sitl.wing import Flow, SimWing, SteadyFlow, WingSpec
 
 log = logging.getLogger(__name__)
@@ -209,33 +210,17 @@ class Schedule:
     io_delays: tuple[tuple[float, float, float, float], ...] | None = None
 
 
-class SimLink:
+class SimLink(SimLinkBase):
     """The flight controller as ``Bridge`` sees an ``FcLink``, driven by a simulated clock.
 
     ``deliver(t)`` makes the messages sent up to ``t - latency`` pending; ``poll()`` consumes them the
     way ``FcLink.poll`` does (servo outputs, airspeed, heartbeat) and returns nothing for the
     parameter server. Whatever the bridge sends is counted."""
 
-    component_id = 191
-
     def __init__(self, scenario: Scenario, fc: FcOutputs, schedule: Schedule, clock: Callable[[], float]) -> None:
+        super().__init__()
         self.scenario, self.fc, self.schedule, self.clock = scenario, fc, schedule, clock
-        self.system_id = 1
-        self.autopilot = "ardupilot"
-        self.armed = False
-        self.fc_alive = True
-        self.ready = True
-        self.mav = None
-        self.servo_pwm: dict[int, float] = {}
-        self.servo_raw: dict[int, float] = {}
-        self.servo_invalid: set[int] = set()
-        self.servo_time: float | None = None
-        self.airspeed: float | None = None
-        self.airspeed_time: float | None = None
-        self.acks: dict[int, int] = {}
         self.servo_messages = 0
-        self.texts: list[str] = []
-        self.named_sent = 0
         self._pending: list[tuple[str, object]] = []
         self._every = max(1, round(1.0 / (fc.period * schedule.airspeed_rate_hz)))
         self._next_hb = schedule.heartbeat_offset_s
@@ -268,30 +253,6 @@ class SimLink:
                 self.airspeed, self.airspeed_time = float(value), now  # type: ignore[arg-type]
         self._pending.clear()
         return []
-
-    def send_named_float(self, name: str, value: float) -> bool:
-        self.named_sent += 1
-        return True
-
-    def send_statustext(self, severity: int, text: str) -> bool:
-        self.texts.append(text)
-        log.debug("STATUSTEXT %s", text)
-        return True
-
-    def send(self, msg) -> bool:
-        return True
-
-    def command_long_send(self, *args) -> bool:
-        return True
-
-    def set_servo_rate(self, rate_hz: float) -> None:
-        log.debug("lock-step: servo rate %g Hz asked (the stream keeps its rate)", rate_hz)
-
-    def connect(self, timeout: float = 0.0) -> bool:
-        return True
-
-    def close(self) -> None:
-        pass
 
 
 Read = tuple[float, int, float, float, float]  # (t, counts, true warp, tendon mm, airspeed)
