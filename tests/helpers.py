@@ -20,3 +20,14 @@ class ManualClock:
 
     def __call__(self) -> float:
         return self.t
+
+
+def drain_mavlink(sock, parser) -> list:
+    """Every MAVLink message waiting on a non-blocking UDP socket, parsed (BAD_DATA dropped)."""
+    out: list = []
+    while True:
+        try:
+            data = sock.recv(65536)
+        except (BlockingIOError, ConnectionRefusedError):
+            return out
+        out.extend(m for m in (parser.parse_buffer(data) or []) if m.get_type() != "BAD_DATA")

@@ -19,7 +19,7 @@ import struct
 from pathlib import Path
 
 import pytest
-from helpers import ManualClock, free_udp_port
+from helpers import ManualClock, drain_mavlink, free_udp_port
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -148,12 +148,7 @@ class Rig:
             self.drain()
 
     def drain(self) -> None:
-        while True:
-            try:
-                data = self.sock.recv(65536)
-            except (BlockingIOError, ConnectionRefusedError):
-                return
-            self.received.extend(m for m in (self.rx.parse_buffer(data) or []) if m.get_type() != "BAD_DATA")
+        self.received.extend(drain_mavlink(self.sock, self.rx))
 
     def check_pulses(self) -> None:
         for _, ch, pulse in self.servo.history[self.checked:]:

@@ -10,7 +10,7 @@ import socket
 from pathlib import Path
 
 import pytest
-from helpers import ManualClock, free_udp_port
+from helpers import ManualClock, drain_mavlink, free_udp_port
 
 from bridge.app import Bridge
 from bridge.config import load_config
@@ -145,12 +145,7 @@ class Rig:
             self.drain()
 
     def drain(self) -> None:
-        while True:
-            try:
-                data = self.sock.recv(65536)
-            except (BlockingIOError, ConnectionRefusedError):
-                return
-            self.received.extend(m for m in (self.rx.parse_buffer(data) or []) if m.get_type() != "BAD_DATA")
+        self.received.extend(drain_mavlink(self.sock, self.rx))
 
     def following(self, pwm: int) -> bool:
         want = self.bridge.mixer.setpoints({1: float(pwm)})
