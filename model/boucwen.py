@@ -179,10 +179,12 @@ class Stepper:
     def set_params(self, params: BoucWenParams) -> None:
         self.params = params
         self._p = params.to_array()
+        self._zn = -1.0  # |z|^n carried between forward steps, as the array map does (-1: not known)
 
     def reset(self, w0: float = 0.0, z0: float = 0.0) -> None:
         self.w = float(w0)
         self.z = float(z0)
+        self._zn = -1.0
 
     @property
     def u(self) -> float:
@@ -191,10 +193,10 @@ class Stepper:
     def inverse_step(self, w: float) -> float:
         u, z = K.inverse_step(self._p, self.w, self.z, float(w))
         if np.isfinite(w) and np.isfinite(z) and np.isfinite(u):
-            self.w, self.z = float(w), float(z)
+            self.w, self.z, self._zn = float(w), float(z), -1.0
         return float(K.output_u(self._p, self.w, self.z))
 
     def forward_step(self, u: float) -> float:
-        w, z, _ = K.forward_step(self._p, self.w, self.z, float(u))
-        self.w, self.z = float(w), float(z)
+        w, z, zn, _ = K.forward_step_zn(self._p, self.w, self.z, self._zn, float(u))
+        self.w, self.z, self._zn = float(w), float(z), float(zn)
         return self.w

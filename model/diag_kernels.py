@@ -21,8 +21,9 @@ def forward_run_capped(p, u, w0: float, z0: float, w_out, z_out, max_flagged: in
     flagged = 0
     wp = w0
     zp = z0
+    zn = -1.0
     for k in range(u.shape[0]):
-        w, z, st = K.forward_step(p, wp, zp, u[k])
+        w, z, zn, st = K.forward_step_zn(p, wp, zp, zn, u[k])
         if st != 0:
             flagged += 1
             if flagged > max_flagged:

@@ -7,11 +7,16 @@ The model maps warp ``w`` (deg) to tendon travel ``u`` (mm)::
                                   + b4 sgn(w') + b5 sgn(z) + b6 sgn(w)
 
 It is rate independent, so ``z`` is integrated over ``w`` (never over time).
-Integration uses classical RK4 with sub-steps no longer than ``H_MAX`` deg and
-no longer than ``K_STIFF / |df/dz|``: after a reversal ``|z|^n Psi`` can reach
-~60/deg, where a single explicit step would overshoot. The step sequence is a
-greedy march clipped to the end point, so ``z(w_end)`` is continuous in
-``w_end`` and the result does not depend on how the input was sampled.
+Each sub-step is no longer than ``H_MAX`` deg and no longer than
+``K_STIFF / |df/dz|`` (after a reversal ``|z|^n Psi`` can reach ~60/deg, where a
+single explicit step would overshoot) and keeps its local error, estimated
+from the derivatives of ``f``, below ``TOL_Z``: classical RK4 by default, a
+cheaper Heun or Kutta-3 step when that already meets the tolerance, and an
+L-stable linearly implicit Euler step where ``z`` rests at saturation. The
+step sequence is a greedy march clipped to the end point, so ``z(w_end)`` is
+continuous in ``w_end`` and the result does not depend on how the input was
+sampled. ``|z|^n`` costs most (exp and log), so each step's last stage lends
+it to the next through ``_carry_pow``.
 
 Parameters travel as one float64 array ``p`` laid out as in ``P_*`` below.
 Every kernel is NaN-safe: a non-finite input sample leaves the state unchanged,
@@ -37,6 +42,8 @@ TOL_Z = 1e-8  # local error allowed per sub-step, in units of z
 NEWTON_ACCEPT = 1e-6  # relative Newton correction below which the forward solve stops
 Z_CAP = 1.0e6  # |z| beyond this is a diverged parameter set
 MAX_SUBSTEPS = 20_000  # per sample; beyond this a parameter set counts as diverged
+THIRD = 1.0 / 3.0
+SIXTH = 1.0 / 6.0
 
 
 @njit(cache=True, inline="always")
@@ -46,6 +53,26 @@ def _sgn(x: float) -> float:
     if x < 0.0:
         return -1.0
     return 0.0
+
+
+@njit(cache=True, inline="always")
+def _pow_n(az: float, n: float) -> float:
+    """|z|^n for az = |z| > 0: exp(n log|z|) is within a few ulp of pow and ~20 % cheaper, and the
+    kernels spend most of their time here."""
+    return math.exp(n * math.log(az))
+
+
+@njit(cache=True, inline="always")
+def _carry_pow(z: float, zn: float, z_new: float, n: float) -> float:
+    """|z_new|^n from zn = |z|^n when z_new is within 1e-4 of z relatively (the binomial series to
+    x^4 is then exact to rounding); -1 (unknown) otherwise."""
+    if zn < 0.0 or z == 0.0:
+        return -1.0
+    x = (z_new - z) / z
+    if not abs(x) <= 1e-4:
+        return -1.0
+    s = 1.0 + (n - 2.0) * THIRD * x * (1.0 + 0.25 * (n - 3.0) * x)
+    return zn * (1.0 + n * x * (1.0 + 0.5 * (n - 1.0) * x * s))
 
 
 @njit(cache=True, inline="always")
@@ -66,7 +93,7 @@ def dz_dw(p, z: float, sdw: float, sw: float) -> float:
     az = abs(z)
     if az == 0.0:
         return p[P_A]
-    return p[P_A] - az ** p[P_N] * _psi(p, sdw, sw, _sgn(z))
+    return p[P_A] - _pow_n(az, p[P_N]) * _psi(p, sdw, sw, _sgn(z))
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
@@ -74,17 +101,26 @@ def integrate_z(p, w0: float, z0: float, w1: float) -> float:
     """State z after moving monotonically from (w0, z0) to w1.
 
     Returns NaN only if the parameter set diverges (|z| > Z_CAP or too stiff to integrate)."""
+    return integrate_z_from(p, w0, z0, -1.0, w1)[0]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
+    """``integrate_z`` carrying zn = |z|^n (-1 when not known): returns (z, zn) at w1, taking
+    ``zn0`` = |z0|^n if already known. Powers are the kernels' costliest operation; the value at
+    the end of a step is carried from the nearest stage by ``_carry_pow`` (exact to rounding)."""
     if not (w1 == w1) or w1 == w0:
-        return z0
+        return z0, zn0
     sdw = 1.0 if w1 > w0 else -1.0
     n = p[P_N]
     A = p[P_A]
     w = w0
     z = z0
+    zc = zn0  # |z|^n if known
     for _ in range(MAX_SUBSTEPS):
         remaining = (w1 - w) * sdw
         if remaining <= 0.0:
-            return z
+            return z, zc
         # Step size from the local error of RK4 on the linearised ODE,
         # err ~ (h J)^5 / 120 * |f| / J with J = |df/dz|, and h J <= K_STIFF for stability;
         # where z rests near saturation an L-stable step is taken instead.
@@ -100,24 +136,31 @@ def integrate_z(p, w0: float, z0: float, w1: float) -> float:
         sw = _sgn(w + 0.5 * h * sdw)
         az = abs(z)
         implicit = False
+        zn = 0.0
+        js = 0.0
+        jac = 0.0
+        inv_z = 0.0
         if az > 0.0:
-            zn = az ** n
+            zn = zc if zc >= 0.0 else _pow_n(az, n)
             psi = _psi(p, sdw, sw, _sgn(z))
             k1 = A - zn * psi
-            js = -n * zn / z * psi * sdw  # d(dz/ds)/dz along the path s = |w - w0|
+            inv_z = 1.0 / z
+            js = -n * zn * inv_z * psi * sdw  # d(dz/ds)/dz along the path s = |w - w0|
             jac = abs(js)
             if jac > 0.0:
                 f = abs(k1)
                 h_rk = h
                 if h_rk * jac > K_STIFF:
                     h_rk = K_STIFF / jac
-                if f > 0.0 and (h_rk * jac) ** 5 * f > 120.0 * TOL_Z * jac:
-                    h_rk = (120.0 * TOL_Z * jac / f) ** 0.2 / jac
-                if h_rk < h and js < 0.0:
+                x = h_rk * jac
+                if f > 0.0 and x * x * x * x * x * f > 120.0 * TOL_Z * jac:
+                    h_rk = _pow_n(120.0 * TOL_Z * jac / f, 0.2) / jac
+                if js < 0.0:
                     # z rests near its saturation: an L-stable linearly implicit Euler step
-                    # (error ~ h^2 J |f| / 2) goes further than RK4 may
-                    h_be = h if f == 0.0 else min(h, math.sqrt(2.0 * TOL_Z / (jac * f)))
-                    if h_be > h_rk:
+                    # (error ~ h^2 J |f| / 2) goes further than RK4 may, or as far for one power
+                    # instead of three
+                    h_be = h if h * h * jac * f <= 2.0 * TOL_Z else math.sqrt(2.0 * TOL_Z / (jac * f))
+                    if h_be >= h_rk:
                         h = h_be
                         implicit = True
                 if not implicit and h_rk < h:
@@ -128,21 +171,60 @@ def integrate_z(p, w0: float, z0: float, w1: float) -> float:
         else:
             k1 = A
         hs = h * sdw
+        order = 4
+        if not implicit and az > 0.0:
+            # the cheapest explicit method whose local error, C h^(q+1) |z^(q+1)|, is within half the
+            # tolerance; the solution's derivatives follow from f's (f2, f3: its 2nd and 3rd)
+            f = abs(k1)
+            f2 = abs((n - 1.0) * inv_z * js)
+            d3 = jac * jac * f + f2 * f * f
+            if h * h * h * d3 <= 3.0 * TOL_Z:
+                order = 2
+            else:
+                f3 = abs((n - 2.0) * inv_z) * f2
+                d4 = jac * jac * jac * f + 4.0 * f2 * jac * f * f + f3 * f * f * f
+                if h * h * h * h * d4 <= 12.0 * TOL_Z:
+                    order = 3
         if implicit:
-            z = z + hs * k1 / (1.0 - h * js)
+            z_new = z + hs * k1 / (1.0 - h * js)
+            zc = _carry_pow(z, zn, z_new, n)
+        elif order == 2:
+            # Heun: its last stage sits next to the end point, so |z|^n carries over
+            z2 = z + hs * k1
+            a2 = abs(z2)
+            zn2 = _pow_n(a2, n) if a2 > 0.0 else 0.0
+            k2 = A - zn2 * _psi(p, sdw, sw, _sgn(z2)) if a2 > 0.0 else A
+            z_new = z + 0.5 * hs * (k1 + k2)
+            zc = _carry_pow(z2, zn2, z_new, n)
+        elif order == 3:
+            # Kutta's third-order method; its last stage too sits next to the end point
+            k2 = dz_dw(p, z + 0.5 * hs * k1, sdw, sw)
+            z3 = z + hs * (2.0 * k2 - k1)
+            a3 = abs(z3)
+            zn3 = _pow_n(a3, n) if a3 > 0.0 else 0.0
+            k3 = A - zn3 * _psi(p, sdw, sw, _sgn(z3)) if a3 > 0.0 else A
+            z_new = z + hs * (k1 + 4.0 * k2 + k3) * SIXTH
+            zc = _carry_pow(z3, zn3, z_new, n)
         else:
             k2 = dz_dw(p, z + 0.5 * hs * k1, sdw, sw)
             k3 = dz_dw(p, z + 0.5 * hs * k2, sdw, sw)
-            k4 = dz_dw(p, z + hs * k3, sdw, sw)
-            z = z + hs * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+            z4 = z + hs * k3
+            a4 = abs(z4)
+            zn4 = _pow_n(a4, n) if a4 > 0.0 else 0.0
+            k4 = A - zn4 * _psi(p, sdw, sw, _sgn(z4)) if a4 > 0.0 else A
+            z_new = z + hs * (k1 + 2.0 * k2 + 2.0 * k3 + k4) * SIXTH
+            zc = _carry_pow(z4, zn4, z_new, n)
+        z = z_new
+        if z == 0.0:
+            zc = 0.0
         if not (abs(z) < Z_CAP):
-            return np.nan
+            return np.nan, -1.0
         if last:
-            return z
+            return z, zc
         w = w + hs
         if (w1 - w) * sdw <= 0.0:
-            return z
-    return np.nan  # too stiff to integrate: treat as diverged
+            return z, zc
+    return np.nan, -1.0  # too stiff to integrate: treat as diverged
 
 
 @njit(cache=True, inline="always")
@@ -200,38 +282,49 @@ def forward_step(p, w0: float, z0: float, u: float):
     bracket) for w on the monotone branch leaving (w0, z0). If u lies beyond
     the model's monotone range the warp stops where du/dw reaches zero.
     Returns (w, z, status): status 0 ok, 1 saturated, 2 diverged/failed."""
+    w, z, _, st = forward_step_zn(p, w0, z0, -1.0, u)
+    return w, z, st
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
+    """``forward_step`` that also takes and returns zn = |z|^n (-1 when not known): a run of
+    samples carries it, saving one power per sample. Returns (w, z, zn, status)."""
     if not (u == u):
-        return w0, z0, 0
+        return w0, z0, zn0, 0
     u0 = output_u(p, w0, z0)
     du = u - u0
     if du == 0.0:
-        return w0, z0, 0
+        return w0, z0, zn0, 0
     sdw = 1.0 if du > 0.0 else -1.0
     scale = abs(p[P_A2]) + abs(p[P_AZ] * p[P_A]) + 1e-12
     tol_u = 1e-13 * (abs(u) + scale)
-    d0 = slope_du_dw(p, w0, z0, sdw)
+    sw0 = _sgn(w0) if w0 != 0.0 else sdw
+    # |z0|^n, shared by the guess and the first sub-step
+    azn = 0.0 if z0 == 0.0 else (zn0 if zn0 >= 0.0 else _pow_n(abs(z0), p[P_N]))
+    psi0 = _psi(p, sdw, sw0, _sgn(z0))
+    f0 = p[P_A] - azn * psi0
+    d0 = 2.0 * p[P_A1] * w0 + p[P_A2] + p[P_AZ] * f0
     if d0 <= 1e-12 * scale:
         d0 = scale
     lo = w0  # G(lo)*sdw < 0
     hi = np.nan  # G(hi)*sdw > 0 once known
     lo_z = z0
     # second-order guess: u(w0 + d) ~ u0 + D d + D' d^2 / 2
-    w = w0 + du / d0
+    inv_d0 = 1.0 / d0
+    step = du * inv_d0
+    w = w0 + step
     if z0 != 0.0:
-        sw0 = _sgn(w0) if w0 != 0.0 else sdw
-        psi0 = _psi(p, sdw, sw0, _sgn(z0))
-        azn = abs(z0) ** p[P_N]
-        f0 = p[P_A] - azn * psi0
         dfdz = -p[P_N] * azn / z0 * psi0
         d1 = 2.0 * p[P_A1] + p[P_AZ] * dfdz * f0
-        corr = 1.0 - d1 * du / (2.0 * d0 * d0)
+        corr = 1.0 - 0.5 * d1 * step * inv_d0
         if corr > 0.5 and corr < 1.5:
-            w = w0 + du / d0 * corr
+            w = w0 + step * corr
     best_w = w0
     best_z = z0
     status = 0
     for _ in range(100):
-        z = integrate_z(p, w0, z0, w)
+        z, zc = integrate_z_from(p, w0, z0, azn, w)
         if not (z == z):
             # diverged on the way: shrink toward lo
             hi = w
@@ -239,9 +332,10 @@ def forward_step(p, w0: float, z0: float, u: float):
             status = 2
             continue
         g = output_u(p, w, z) - u
+        zn_w = zc if zc >= 0.0 else (_pow_n(abs(z), p[P_N]) if z != 0.0 else 0.0)
         if abs(g) <= tol_u:
-            return w, z, 0
-        f_end = dz_dw(p, z, sdw, _sgn(w) if w != 0.0 else sdw)
+            return w, z, zn_w, 0
+        f_end = p[P_A] - zn_w * _psi(p, sdw, _sgn(w) if w != 0.0 else sdw, _sgn(z))
         d = 2.0 * p[P_A1] * w + p[P_A2] + p[P_AZ] * f_end
         if g * sdw < 0.0:
             if d <= 0.0:
@@ -262,7 +356,8 @@ def forward_step(p, w0: float, z0: float, u: float):
         if wn == wn and abs(wn - w) <= NEWTON_ACCEPT * (abs(w) + 1.0) and (
                 hi != hi or ((wn - lo) * sdw > 0.0 and (hi - wn) * sdw > 0.0)):
             # a move this small needs no sub-steps: Euler error ~ (wn - w)^2 * |df/dw|
-            return wn, z + f_end * (wn - w), 0
+            z_new = z + f_end * (wn - w)
+            return wn, z_new, (0.0 if z_new == 0.0 else _carry_pow(z, zn_w, z_new, p[P_N])), 0
         if hi == hi:
             inside = wn == wn and (wn - lo) * sdw > 0.0 and (hi - wn) * sdw > 0.0
             if not inside or status == 1:
@@ -283,10 +378,8 @@ def forward_step(p, w0: float, z0: float, u: float):
                     hi = wm
                 if abs(hi - lo) <= 1e-13 * (abs(lo) + 1.0):
                     break
-            return lo, lo_z, 1
-    if status == 2:
-        return best_w, best_z, 2
-    return best_w, best_z, status
+            return lo, lo_z, -1.0, 1
+    return best_w, best_z, -1.0, status
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
@@ -295,8 +388,9 @@ def forward_run(p, u, w0: float, z0: float, w_out, z_out) -> int:
     flagged = 0
     wp = w0
     zp = z0
+    zn = -1.0
     for k in range(u.shape[0]):
-        w, z, st = forward_step(p, wp, zp, u[k])
+        w, z, zn, st = forward_step_zn(p, wp, zp, zn, u[k])
         if st != 0:
             flagged += 1
         wp = w
@@ -312,8 +406,9 @@ def forward_sse(p, u, w_meas, weight, w0: float, z0: float) -> float:
     sse = 0.0
     wp = w0
     zp = z0
+    zn = -1.0
     for k in range(u.shape[0]):
-        w, z, st = forward_step(p, wp, zp, u[k])
+        w, z, zn, st = forward_step_zn(p, wp, zp, zn, u[k])
         if st != 0:  # diverged, or u beyond the model's monotone range: not a candidate
             return np.inf
         wp = w
