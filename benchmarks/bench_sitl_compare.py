@@ -1,6 +1,6 @@
 """Print the lock-step comparison table: every controller mode, calm and in 7 / 12 m/s gusts.
 
-    python benchmarks/bench_sitl_compare.py [--duration 30] [--kp 7 --ki 1] [--seed 0]
+    python benchmarks/bench_sitl_compare.py [--duration 30] [--kp MM_PER_DEG --ki MM_PER_DEG_S] [--seed 0]
 
 The same table as ``warpbridge sitl --lockstep``, beside the paper's bench figures
 (open loop 1.727, PI only 2.04, feed-forward + PI 0.285 deg).

@@ -67,8 +67,8 @@ class SensorCal:
 @dataclass(frozen=True)
 class ControlConfig:
     mode: str = "ff+pi"
-    kp: float = 7.0  # mm of tendon per deg of warp error (the paper's Kp)
-    ki: float = 1.0  # mm of tendon per deg*s of integrated error (the paper's Ki)
+    kp: float = 7.0  # mm of tendon per deg of warp error
+    ki: float = 1.0  # mm of tendon per deg*s of integrated error
     i_max_mm: float = 2.0  # limit of the PI integrator in ff+pi (trim authority), mm
     u_min_mm: float | None = None  # tendon limits; None = from the servo calibration
     u_max_mm: float | None = None

@@ -8,7 +8,8 @@ Modes (``MODES``; ``WB_MODE`` 0..3 in this order):
 - ``ff``: feed-forward, the inverse Bouc-Wen model (``Stepper.inverse_step``) on the setpoint;
 - ``ff+pi``: feed-forward plus PI trim; the integrator is limited to +-``i_max`` mm.
 
-Units: e in deg, Kp in mm per deg, Ki in mm per deg*s (the paper's Kp = 7, Ki = 1), u in mm.
+Units: e in deg, Kp in mm per deg, Ki in mm per deg*s, u in mm. (The paper's Kp = 7, Ki = 1 are in
+degrees of servo horn per degree: 1.22 mm/deg and 0.175 mm/(deg s) on a 10 mm horn.)
 The model and the error see the setpoint through a play (backlash) of half-width
 ``deadband`` deg: FC PWM jitter of a few us would otherwise feed the hysteresis
 model tiny reversals, each one a jump of the loop width. The bridge sizes it from

@@ -100,9 +100,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=MODES, default="ff+pi", help="bridge controller mode (real-time run)")
     parser.add_argument("--kp", type=float, default=None,
                         help=f"PI gain, mm/deg (default: {RIG_KP:g} for the simulated rig's fast servo in real time; "
-                             "the paper's 7 in --lockstep, which reproduces the paper's comparison)")
+                             "in --lockstep the paper's Kp = 7 deg of servo horn per deg, 1.22 mm/deg on the "
+                             "rig's 10 mm horn, which reproduces the paper's comparison)")
     parser.add_argument("--ki", type=float, default=None,
-                        help=f"PI gain, mm/(deg s) (default: {RIG_KI:g} in real time; the paper's 1 in --lockstep)")
+                        help=f"PI gain, mm/(deg s) (default: {RIG_KI:g} in real time; in --lockstep the paper's "
+                             "Ki = 1 deg of horn per deg s, 0.175 mm/(deg s))")
     parser.add_argument("--seed", type=int, default=0, help="seed of the reference, gusts and noise")
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
 
@@ -532,8 +534,11 @@ def main(args: argparse.Namespace) -> int:
     spec = wing_spec(args.model, parse_effects(args.effects))
     if args.lockstep:
         scenarios = (args.scenario,) if args.scenario else ("random", "gust7", "gust12")
-        print(f"lock-step, {args.duration:g} s per run; simulated wing effects: "
-              f"{spec.plant.effects.to_dict() or 'none'}")
+        kp0, ki0 = Rig().paper_gains
+        kp, ki = (kp0 if args.kp is None else args.kp), (ki0 if args.ki is None else args.ki)
+        gains = "the paper's Kp = 7, Ki = 1 in deg of servo horn" if args.kp is None and args.ki is None else "given"
+        print(f"lock-step, {args.duration:g} s per run; PI gains Kp = {kp:.3g} mm/deg, Ki = {ki:.3g} mm/(deg s) "
+              f"({gains}); simulated wing effects: {spec.plant.effects.to_dict() or 'none'}")
         rows = compare(scenarios, duration_s=args.duration, spec=spec, kp=args.kp, ki=args.ki, seed=args.seed,
                        controller_params=bridge_params(args.bridge_model))
         print(comparison_table(rows))

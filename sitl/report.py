@@ -35,8 +35,8 @@ def comparison_table(rows: Iterable[CompareRow]) -> str:
         lines.append(f"{r.scenario:<9} {MODE_LABEL.get(r.mode, r.mode):<18} {_num(r.rms_left)} "
                      f"{_num(r.rms_right)} {_num(r.rms_mean)} {_num(r.paper)}")
     lines.append("")
-    lines.append("RMS of setpoint - true warp, deg. Paper (Lee et al. 2017, bench, 1 Hz 4 deg random): "
-                 + ", ".join(f"{MODE_LABEL[m]} {v:g}" for m, v in PAPER_BENCH_RMS.items()) + ".")
+    lines.append("RMS of setpoint - true warp, deg. Paper (Lee et al. 2017, bench, 1 Hz 4 deg random, Kp = 7, "
+                 "Ki = 1): " + ", ".join(f"{MODE_LABEL[m]} {v:g}" for m, v in PAPER_BENCH_RMS.items()) + ".")
     return "\n".join(lines)
 
 
