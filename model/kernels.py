@@ -170,11 +170,38 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
                     last = False
         else:
             k1 = A
+        if not implicit:
+            # where z moves far relative to itself (leaving 0 after a reversal, or from rest), the
+            # stiffness at the start says little: bound the step by the stiffness where an Euler
+            # step would land, so RK4 never jumps from the soft middle into the stiff saturation
+            for _ in range(60):
+                if h * abs(k1) <= 0.25 * az:
+                    break
+                ze = z + h * sdw * k1
+                aze = abs(ze)
+                if aze == 0.0:
+                    break
+                zne = _pow_n(aze, n)
+                psie = _psi(p, sdw, sw, _sgn(ze))
+                je = n * zne / aze * abs(psie)
+                if je == 0.0:
+                    break
+                fe = abs(A - zne * psie)
+                h_lim = K_STIFF / je
+                x = h_lim * je
+                ff = max(abs(k1), fe)
+                if ff > 0.0 and x * x * x * x * x * ff > 120.0 * TOL_Z * je:
+                    h_lim = _pow_n(120.0 * TOL_Z * je / ff, 0.2) / je
+                if h <= h_lim:
+                    break
+                h = h_lim
+                last = False
         hs = h * sdw
         order = 4
-        if not implicit and az > 0.0:
+        if not implicit and az > 0.0 and h * abs(k1) <= 0.05 * az:
             # the cheapest explicit method whose local error, C h^(q+1) |z^(q+1)|, is within half the
-            # tolerance; the solution's derivatives follow from f's (f2, f3: its 2nd and 3rd)
+            # tolerance; the solution's derivatives follow from f's (f2, f3: its 2nd and 3rd), taken
+            # where the step starts, so only where z changes by less than 5 % over the step
             f = abs(k1)
             f2 = abs((n - 1.0) * inv_z * js)
             d3 = jac * jac * f + f2 * f * f

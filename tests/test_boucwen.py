@@ -137,3 +137,18 @@ def test_params_validate_and_round_trip():
         BoucWenParams.from_dict({k: v for k, v in d.items() if k != "A"})
     with pytest.raises(ValueError):
         BoucWenParams.from_dict({**d, "b": [1, 2, 3]})
+
+
+def test_a_long_move_from_rest_into_a_stiff_saturation_stays_accurate():
+    """Large A and n: z is soft near 0 and very stiff at saturation, so a step sized where it starts
+    would jump straight past saturation (this once returned NaN); it must match a chain of tiny steps."""
+    from model import kernels as K
+
+    p = BoucWenParams(a1=-0.0205, a2=0.712, a3=0.7958, az=0.5369, A=8.29, n=4.33,
+                      b=(23.46, -11.37, 0.773, -3.935, 14.75, -11.14)).to_array()
+    for z0, w1 in ((0.0, 6.88), (0.1, 5.9), (-0.9, 7.5)):
+        big = K.integrate_z(p, 5.0, z0, w1)
+        z = z0
+        for a, b in zip(np.linspace(5.0, w1, 4001)[:-1], np.linspace(5.0, w1, 4001)[1:], strict=True):
+            z = K.integrate_z(p, a, z, b)
+        assert np.isfinite(big) and abs(big - z) < 1e-6, (z0, w1, big, z)
