@@ -9,7 +9,9 @@ The model maps warp ``w`` (deg) to tendon travel ``u`` (mm)::
 It is rate independent, so ``z`` is integrated over ``w`` (never over time).
 Each sub-step is no longer than ``H_MAX`` deg and no longer than
 ``K_STIFF / |df/dz|`` (after a reversal ``|z|^n Psi`` can reach ~60/deg, where a
-single explicit step would overshoot) and keeps its local error, estimated
+single explicit step would overshoot), taken both where the step starts and,
+when z moves far relative to itself, where an Euler step would land (z soft
+near 0 can otherwise jump straight into a stiff saturation), and keeps its local error, estimated
 from the derivatives of ``f``, below ``TOL_Z``: classical RK4 by default, a
 cheaper Heun or Kutta-3 step when that already meets the tolerance, and an
 L-stable linearly implicit Euler step where ``z`` rests at saturation. The
