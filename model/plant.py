@@ -62,6 +62,7 @@ class PlantStepper:
             x0 = e.pretension_gain * (x0 - e.pretension_offset_mm)
         self.w = rest_warp(plant.core_params(), x0, z0)
         self.z = float(z0)
+        self._zn = -1.0  # |z|^n carried between samples, as the array map does
         self._lag_y: float | None = None
 
     def _delayed(self, t: float, u: float) -> float:
@@ -100,8 +101,8 @@ class PlantStepper:
             x = self._play_y
         if e.pretension_gain != 1.0 or e.pretension_offset_mm != 0.0:
             x = e.pretension_gain * (x - e.pretension_offset_mm)
-        w, z, _ = K.forward_step(self._p, self.w, self.z, x)
-        self.w, self.z = float(w), float(z)
+        w, z, zn, _ = K.forward_step_zn(self._p, self.w, self.z, self._zn, x)
+        self.w, self.z, self._zn = float(w), float(z), float(zn)
         w_true = self.w
         if (e.aero_gain_per_kpa != 0.0 or e.aero_deg_per_kpa != 0.0) and airspeed is not None:
             q = float(dynamic_pressure_kpa(airspeed))

@@ -152,3 +152,35 @@ def test_a_long_move_from_rest_into_a_stiff_saturation_stays_accurate():
         for a, b in zip(np.linspace(5.0, w1, 4001)[:-1], np.linspace(5.0, w1, 4001)[1:], strict=True):
             z = K.integrate_z(p, a, z, b)
         assert np.isfinite(big) and abs(big - z) < 1e-6, (z0, w1, big, z)
+
+
+@pytest.mark.parametrize("z0", [1e-4, 1e-3, -1e-4, 0.0])
+@pytest.mark.parametrize("h", [0.25, 0.1, 0.02])
+def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
+    """Near z = 0 the hysteretic state is soft but curves sharply on its way out: one move must land
+    where many tiny ones do, whatever the sample spacing."""
+    from model import kernels as K
+
+    p = P.to_array()
+    big = K.integrate_z(p, 0.5, z0, 0.5 + h)
+    z = z0
+    grid = np.linspace(0.5, 0.5 + h, 4001)
+    for a, b in zip(grid[:-1], grid[1:], strict=True):
+        z = K.integrate_z(p, a, z, b)
+    # a 0.25 deg move is a huge sample step; 2e-5 in z is 1e-5 mm of tendon (the kernels once erred by 2e-3)
+    assert abs(big - z) < 2e-5, (big, z)
+
+
+@pytest.mark.parametrize("effects", ["none", "slack"])
+def test_plant_stepper_gives_identical_results_to_plant_simulate(effects):
+    from model.effects import Effects
+    from model.plant import Plant, PlantStepper
+
+    e = Effects() if effects == "none" else Effects(backlash_mm=0.2, pretension_offset_mm=0.3, pretension_gain=0.9)
+    plant = Plant(P, e)
+    t = np.arange(0, 6, 1 / 500)
+    u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=4)
+    w_true, _ = plant.simulate(t, u)
+    s = PlantStepper(plant, t[0], u[0])
+    w_step = np.array([s.step(tk, uk)[0] for tk, uk in zip(t, u, strict=True)])
+    assert np.array_equal(w_step, w_true)
