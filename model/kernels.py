@@ -98,6 +98,27 @@ def dz_dw(p, z: float, sdw: float, sw: float) -> float:
     return p[P_A] - _pow_n(az, p[P_N]) * _psi(p, sdw, sw, _sgn(z))
 
 
+@njit(cache=True, inline="always")
+def _stage(p, zs: float, sdw: float, sw: float):
+    """(dz/dw, |z|^n) at a stage value zs: a method's last stage lends its power to the next step."""
+    a = abs(zs)
+    if a == 0.0:
+        return p[P_A], 0.0
+    zn = _pow_n(a, p[P_N])
+    return p[P_A] - zn * _psi(p, sdw, sw, _sgn(zs)), zn
+
+
+@njit(cache=True, inline="always")
+def _rk4_limit(jac: float, f: float, h: float) -> float:
+    """Longest RK4 step up to h with h J <= K_STIFF and local error (h J)^5 / 120 |f| / J <= TOL_Z."""
+    if h * jac > K_STIFF:
+        h = K_STIFF / jac
+    x = h * jac
+    if f > 0.0 and x * x * x * x * x * f > 120.0 * TOL_Z * jac:
+        h = _pow_n(120.0 * TOL_Z * jac / f, 0.2) / jac
+    return h
+
+
 @njit(cache=True, fastmath=False, error_model="numpy")
 def integrate_z(p, w0: float, z0: float, w1: float) -> float:
     """State z after moving monotonically from (w0, z0) to w1.
@@ -151,12 +172,7 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
             jac = abs(js)
             if jac > 0.0:
                 f = abs(k1)
-                h_rk = h
-                if h_rk * jac > K_STIFF:
-                    h_rk = K_STIFF / jac
-                x = h_rk * jac
-                if f > 0.0 and x * x * x * x * x * f > 120.0 * TOL_Z * jac:
-                    h_rk = _pow_n(120.0 * TOL_Z * jac / f, 0.2) / jac
+                h_rk = _rk4_limit(jac, f, h)
                 if js < 0.0 and h * f <= 0.05 * az:
                     # z rests near its saturation: an L-stable linearly implicit Euler step
                     # (error ~ h^2 J |f| / 2) goes further than RK4 may, or as far for one power
@@ -189,12 +205,7 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
                 je = n * zne / aze * abs(psie)
                 if je == 0.0:
                     break
-                fe = abs(A - zne * psie)
-                h_lim = K_STIFF / je
-                x = h_lim * je
-                ff = max(abs(k1), fe)
-                if ff > 0.0 and x * x * x * x * x * ff > 120.0 * TOL_Z * je:
-                    h_lim = _pow_n(120.0 * TOL_Z * je / ff, 0.2) / je
+                h_lim = _rk4_limit(je, max(abs(k1), abs(A - zne * psie)), h)
                 if h <= h_lim:
                     break
                 h = h_lim
@@ -221,27 +232,21 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
         elif order == 2:
             # Heun: its last stage sits next to the end point, so |z|^n carries over
             z2 = z + hs * k1
-            a2 = abs(z2)
-            zn2 = _pow_n(a2, n) if a2 > 0.0 else 0.0
-            k2 = A - zn2 * _psi(p, sdw, sw, _sgn(z2)) if a2 > 0.0 else A
+            k2, zn2 = _stage(p, z2, sdw, sw)
             z_new = z + 0.5 * hs * (k1 + k2)
             zc = _carry_pow(z2, zn2, z_new, n)
         elif order == 3:
             # Kutta's third-order method; its last stage too sits next to the end point
             k2 = dz_dw(p, z + 0.5 * hs * k1, sdw, sw)
             z3 = z + hs * (2.0 * k2 - k1)
-            a3 = abs(z3)
-            zn3 = _pow_n(a3, n) if a3 > 0.0 else 0.0
-            k3 = A - zn3 * _psi(p, sdw, sw, _sgn(z3)) if a3 > 0.0 else A
+            k3, zn3 = _stage(p, z3, sdw, sw)
             z_new = z + hs * (k1 + 4.0 * k2 + k3) * SIXTH
             zc = _carry_pow(z3, zn3, z_new, n)
         else:
             k2 = dz_dw(p, z + 0.5 * hs * k1, sdw, sw)
             k3 = dz_dw(p, z + 0.5 * hs * k2, sdw, sw)
             z4 = z + hs * k3
-            a4 = abs(z4)
-            zn4 = _pow_n(a4, n) if a4 > 0.0 else 0.0
-            k4 = A - zn4 * _psi(p, sdw, sw, _sgn(z4)) if a4 > 0.0 else A
+            k4, zn4 = _stage(p, z4, sdw, sw)
             z_new = z + hs * (k1 + 2.0 * k2 + 2.0 * k3 + k4) * SIXTH
             zc = _carry_pow(z4, zn4, z_new, n)
         z = z_new
