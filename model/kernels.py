@@ -90,15 +90,6 @@ def _psi(p, sdw: float, sw: float, sz: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def dz_dw(p, z: float, sdw: float, sw: float) -> float:
-    """Slope dz/dw of the hysteretic state moving in direction ``sdw``."""
-    az = abs(z)
-    if az == 0.0:
-        return p[P_A]
-    return p[P_A] - _pow_n(az, p[P_N]) * _psi(p, sdw, sw, _sgn(z))
-
-
-@njit(cache=True, inline="always")
 def _stage(p, zs: float, sdw: float, sw: float):
     """(dz/dw, |z|^n) at a stage value zs: a method's last stage lends its power to the next step."""
     a = abs(zs)
@@ -106,6 +97,12 @@ def _stage(p, zs: float, sdw: float, sw: float):
         return p[P_A], 0.0
     zn = _pow_n(a, p[P_N])
     return p[P_A] - zn * _psi(p, sdw, sw, _sgn(zs)), zn
+
+
+@njit(cache=True, inline="always")
+def dz_dw(p, z: float, sdw: float, sw: float) -> float:
+    """Slope dz/dw of the hysteretic state moving in direction ``sdw``."""
+    return _stage(p, z, sdw, sw)[0]
 
 
 @njit(cache=True, inline="always")
