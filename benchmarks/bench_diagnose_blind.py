@@ -40,10 +40,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from plants import BenchPlant, describe, draw_plants, magnitude_for  # noqa: E402
 
-from bridge.cli import main as cli  # noqa: E402
-from bridge.logfile import write_csv_atomic  # noqa: E402
-from model import excitation  # noqa: E402
-from model.effects import EFFECT_NAMES, Effects  # noqa: E402
+from warpbridge.bridge.cli import main as cli  # noqa: E402
+from warpbridge.bridge.logfile import write_csv_atomic  # noqa: E402
+from warpbridge.model import excitation  # noqa: E402
+from warpbridge.model.effects import EFFECT_NAMES, Effects  # noqa: E402
 
 TARGETS = {"single": 0.90, "false_alarm": 0.10, "pairs": 0.70, "gap_closed": 0.70, "seconds": 60.0}
 

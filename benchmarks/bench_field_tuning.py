@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from sitl.field_tuning import evidence_table, failure_rows, format_table
+from warpbridge.sitl.field_tuning import evidence_table, failure_rows, format_table
 
 
 def main() -> None:

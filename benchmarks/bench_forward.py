@@ -25,9 +25,9 @@ FS, T = 500.0, 60.0
 CHILD = r"""
 import json, sys, time
 import numpy as np
-from model.boucwen import BoucWenParams
-from model import kernels as K
-from model.excitation import filtered_random
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model import kernels as K
+from warpbridge.model.excitation import filtered_random
 t = np.arange(0, %(T)r * %(FS)r) / %(FS)r
 u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=1)
 p = BoucWenParams.paper().to_array()
@@ -40,9 +40,9 @@ print(json.dumps({"run_s": sorted(times)[1], "per_sample": sorted(times)[1] / u.
 
 
 def main() -> None:
-    from model import kernels as K
-    from model.boucwen import BoucWenParams, forward, inverse
-    from model.excitation import filtered_random
+    from warpbridge.model import kernels as K
+    from warpbridge.model.boucwen import BoucWenParams, forward, inverse
+    from warpbridge.model.excitation import filtered_random
 
     t = np.arange(0, T * FS) / FS
     u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=1)

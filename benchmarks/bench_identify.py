@@ -21,9 +21,9 @@ from _common import table  # noqa: E402
 
 
 def main(runs: int = 3) -> None:
-    from model.boucwen import BoucWenParams, forward
-    from model.excitation import filtered_random
-    from model.identify import identify
+    from warpbridge.model.boucwen import BoucWenParams, forward
+    from warpbridge.model.excitation import filtered_random
+    from warpbridge.model.identify import identify
 
     p = BoucWenParams.paper()
     wrong = BoucWenParams(a1=-0.005, a2=0.5, a3=1.5, az=0.3, A=8.0, n=2.0, b=(5, -2, 1, -1, 3, -5))

@@ -34,9 +34,9 @@ from pymavlink import mavutil  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from bridge.controller import straight_line  # noqa: E402
-from model.boucwen import BoucWenParams  # noqa: E402
-from sitl.maestro_emu import MaestroEmulator  # noqa: E402
+from warpbridge.bridge.controller import straight_line  # noqa: E402
+from warpbridge.model.boucwen import BoucWenParams  # noqa: E402
+from warpbridge.sitl.maestro_emu import MaestroEmulator  # noqa: E402
 
 mavlink = mavutil.mavlink
 PULSE_ZERO, MM_PER_US = 1200.0, 0.02
@@ -136,7 +136,7 @@ def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
     else:
         cfg = workdir / f"{kind}.toml"
         cfg.write_text(config(port, path, wake=(kind == "bridge")))
-        cmd = [sys.executable, "-m", "bridge.cli", "-v", "run", "--config", str(cfg)]
+        cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "-v", "run", "--config", str(cfg)]
     proc = subprocess.Popen(cmd, cwd=workdir, env=env, stderr=subprocess.PIPE, text=True)
     fc = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
     seq = aileron_sequence(n)

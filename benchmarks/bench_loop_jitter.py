@@ -27,9 +27,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from bridge.app import run_bridge  # noqa: E402
-from bridge.config import load_config  # noqa: E402
-from bridge.loop_timer import LoopTimer  # noqa: E402
+from warpbridge.bridge.app import run_bridge  # noqa: E402
+from warpbridge.bridge.config import load_config  # noqa: E402
+from warpbridge.bridge.loop_timer import LoopTimer  # noqa: E402
 
 RATE = 100.0
 
@@ -81,7 +81,7 @@ file = "params.json"
 [servo]
 backend = "loop:"
 """ + wing.format(n="left", r="false", c=0) + wing.format(n="right", r="true", c=1))
-    mock = subprocess.Popen([sys.executable, "-m", "sitl.mock_autopilot", "--fc-port", str(port),
+    mock = subprocess.Popen([sys.executable, "-m", "warpbridge.sitl.mock_autopilot", "--fc-port", str(port),
                              "--duration", str(seconds + 5)], cwd=REPO)
     try:
         stop = threading.Event()

@@ -59,7 +59,7 @@ def predict_rms(cli, model: Path, log: Path, out: Path) -> float:
 
 
 def main(data: Path) -> None:
-    from bridge.cli import main as cli
+    from warpbridge.bridge.cli import main as cli
 
     if not data.is_dir():
         print(f"no measured data at {data}: skipped")

@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from sitl.lockstep import compare
-from sitl.report import comparison_table
+from warpbridge.sitl.lockstep import compare
+from warpbridge.sitl.report import comparison_table
 
 
 def main() -> None:

@@ -30,10 +30,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bridge.app import Bridge  # noqa: E402
-from bridge.config import load_config  # noqa: E402
-from bridge.mavlink_env import mavlink  # noqa: E402
-from hw.loop import LoopBackend  # noqa: E402
+from warpbridge.bridge.app import Bridge  # noqa: E402
+from warpbridge.bridge.config import load_config  # noqa: E402
+from warpbridge.bridge.mavlink_env import mavlink  # noqa: E402
+from warpbridge.hw.loop import LoopBackend  # noqa: E402
 
 RATE_HZ = 100
 SERVO_HZ = 400

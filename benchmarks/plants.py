@@ -26,8 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from model.boucwen import BoucWenParams, forward, inverse
-from model.effects import EFFECT_FIELDS, Effects, apply_input_effects, apply_output_effects
+from warpbridge.model.boucwen import BoucWenParams, forward, inverse
+from warpbridge.model.effects import EFFECT_FIELDS, Effects, apply_input_effects, apply_output_effects
 
 
 class BenchPlant:

@@ -38,24 +38,24 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.calibrate import FieldTuning
-from bridge.config import WINGS, Config, WingConfig, backend_has_sensor
-from bridge.controller import MODES, WingController
-from bridge.cyclelog import CycleLog
-from bridge.errors import UserError
-from bridge.link import FcLink
-from bridge.loop_timer import LoopTimer, TimerStats
-from bridge.mavlink_env import mavlink
-from bridge.mixer import Mixer
-from bridge.param_server import ParamServer
-from bridge.params import ParamSpec, ParamStore
-from bridge.signing import policy_from_config
-from bridge.telemetry import MODE_CODES, Telemetry
-from hw import DeviceError, open_sensor, open_servo
-from hw.calibration import SensorCalibration, ServoCalibration
-from model.boucwen import BoucWenParams
-from model.compensation import INVERTIBLE, folded_params
-from model.modelfile import ModelFile
+from warpbridge.bridge.calibrate import FieldTuning
+from warpbridge.bridge.config import WINGS, Config, WingConfig, backend_has_sensor
+from warpbridge.bridge.controller import MODES, WingController
+from warpbridge.bridge.cyclelog import CycleLog
+from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.loop_timer import LoopTimer, TimerStats
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.bridge.mixer import Mixer
+from warpbridge.bridge.param_server import ParamServer
+from warpbridge.bridge.params import ParamSpec, ParamStore
+from warpbridge.bridge.signing import policy_from_config
+from warpbridge.bridge.telemetry import MODE_CODES, Telemetry
+from warpbridge.hw import DeviceError, open_sensor, open_servo
+from warpbridge.hw.calibration import SensorCalibration, ServoCalibration
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.compensation import INVERTIBLE, folded_params
+from warpbridge.model.modelfile import ModelFile
 
 log = logging.getLogger(__name__)
 

@@ -43,12 +43,12 @@ from typing import Any
 
 import numpy as np
 
-from bridge.atomic import write_text_atomic
-from bridge.mavlink_env import mavlink
-from bridge.params import ParamSpec
-from model.adapt import AdaptConfig, PretensionEstimator, fold_pretension
-from model.boucwen import BoucWenParams
-from model.recalibrate import RefitResult, Transform, excitation, refit, refit_full
+from warpbridge.bridge.atomic import write_text_atomic
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.bridge.params import ParamSpec
+from warpbridge.model.adapt import AdaptConfig, PretensionEstimator, fold_pretension
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.recalibrate import RefitResult, Transform, excitation, refit, refit_full
 
 log = logging.getLogger(__name__)
 

@@ -13,18 +13,18 @@ import importlib.util
 import logging
 import sys
 
-from bridge.errors import UserError
+from warpbridge.bridge.errors import UserError
 
 # name -> (module, one-line help). ``sitl`` lives in the sitl package: it is
 # loaded by name so that the running bridge never imports simulation code.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "sitl": ("sitl.cmd_sitl", "run the SITL demo: mock autopilot, simulated wings, the bridge"),
-    "run": ("bridge.cmd_run", "run the bridge on a real flight controller"),
-    "simulate": ("bridge.cmd_simulate", "write a log simulated from a plant and an excitation"),
-    "identify": ("bridge.cmd_identify", "identify a Bouc-Wen model from a log"),
-    "predict": ("bridge.cmd_predict", "predict warp from a log's tendon input with a model"),
-    "diagnose": ("bridge.cmd_diagnose", "find and explain the gap between a model and a log"),
-    "calibrate": ("bridge.cmd_calibrate", "pre-flight self-calibration of the tendon model"),
+    "sitl": ("warpbridge.sitl.cmd_sitl", "run the SITL demo: mock autopilot, simulated wings, the bridge"),
+    "run": ("warpbridge.bridge.cmd_run", "run the bridge on a real flight controller"),
+    "simulate": ("warpbridge.bridge.cmd_simulate", "write a log simulated from a plant and an excitation"),
+    "identify": ("warpbridge.bridge.cmd_identify", "identify a Bouc-Wen model from a log"),
+    "predict": ("warpbridge.bridge.cmd_predict", "predict warp from a log's tendon input with a model"),
+    "diagnose": ("warpbridge.bridge.cmd_diagnose", "find and explain the gap between a model and a log"),
+    "calibrate": ("warpbridge.bridge.cmd_calibrate", "pre-flight self-calibration of the tendon model"),
 }
 
 

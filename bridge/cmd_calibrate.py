@@ -23,7 +23,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from bridge.errors import UserError
+from warpbridge.bridge.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -41,10 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from bridge.app import Bridge
-    from bridge.calibrate import CalState, Refused
-    from bridge.config import load_config
-    from bridge.loop_timer import LoopTimer
+    from warpbridge.bridge.app import Bridge
+    from warpbridge.bridge.calibrate import CalState, Refused
+    from warpbridge.bridge.config import load_config
+    from warpbridge.bridge.loop_timer import LoopTimer
 
     config = load_config(args.config)
     if args.seconds is not None and not 8.0 <= args.seconds <= 29.0:

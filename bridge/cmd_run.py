@@ -14,12 +14,12 @@ import signal
 import threading
 from pathlib import Path
 
-from bridge.app import load_model, run_bridge, servo_limits
-from bridge.config import Config, backend_has_sensor, load_config
-from bridge.errors import UserError
-from bridge.link import FcLink
-from bridge.signing import policy_from_config
-from hw import DeviceError, open_sensor, open_servo
+from warpbridge.bridge.app import load_model, run_bridge, servo_limits
+from warpbridge.bridge.config import Config, backend_has_sensor, load_config
+from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.signing import policy_from_config
+from warpbridge.hw import DeviceError, open_sensor, open_servo
 
 log = logging.getLogger(__name__)
 

@@ -11,13 +11,13 @@ import argparse
 
 import numpy as np
 
-from bridge.effects_spec import help_text, parse_effects
-from bridge.errors import UserError
-from bridge.logfile import write_csv_atomic
-from bridge.modelio import load_model
-from model import excitation
-from model.boucwen import inverse
-from model.plant import Plant
+from warpbridge.bridge.effects_spec import help_text, parse_effects
+from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.logfile import write_csv_atomic
+from warpbridge.bridge.modelio import load_model
+from warpbridge.model import excitation
+from warpbridge.model.boucwen import inverse
+from warpbridge.model.plant import Plant
 
 EXCITATIONS = ("random", "sine", "sweep", "multisine", "steps")
 

@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model.boucwen import BoucWenParams, Stepper, inverse
-from model.compensation import BacklashInverse, aero_inverse
-from model.effects import Effects
+from warpbridge.model.boucwen import BoucWenParams, Stepper, inverse
+from warpbridge.model.compensation import BacklashInverse, aero_inverse
+from warpbridge.model.effects import Effects
 
 MODES = ("open", "pi", "ff", "ff+pi")
 

@@ -7,8 +7,8 @@ their neutral value.
 
 from __future__ import annotations
 
-from bridge.errors import UserError
-from model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from warpbridge.bridge.errors import UserError
+from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
 
 
 def parse_effects(spec: str | None) -> Effects:

@@ -43,8 +43,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.mavlink_env import mavlink, mavutil
-from bridge.signing import Signer, SigningPolicy
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.bridge.signing import Signer, SigningPolicy
 
 log = logging.getLogger(__name__)
 

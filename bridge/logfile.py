@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge import atomic
-from bridge.errors import UserError
+from warpbridge.bridge import atomic
+from warpbridge.bridge.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@
 pymavlink chooses MAVLink 1 or 2 from the environment variable ``MAVLINK20`` and
 the message set from ``MAVLINK_DIALECT``, both read when ``pymavlink.mavutil`` is
 first imported. Every bridge module imports MAVLink through this module
-(``from bridge.mavlink_env import mavutil, mavlink``) so that the bridge always
+(``from warpbridge.bridge.mavlink_env import mavutil, mavlink``) so that the bridge always
 speaks MAVLink 2 with the ardupilotmega dialect (which includes common.xml). If
 something imported pymavlink earlier with other settings, the dialect is
 switched here.

@@ -24,7 +24,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from bridge.config import WingConfig
+from warpbridge.bridge.config import WingConfig
 
 PWM_MARGIN_US = 200.0  # PWM further than this outside [pwm_min, pwm_max] is invalid
 

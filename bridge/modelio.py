@@ -6,15 +6,15 @@ import json
 import os
 from pathlib import Path
 
-from bridge.errors import UserError
-from bridge.logfile import write_text_atomic
-from model.modelfile import ModelFile
+from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.logfile import write_text_atomic
+from warpbridge.model.modelfile import ModelFile
 
 
 def load_model(path: str | os.PathLike) -> ModelFile:
     """Load a model file; ``paper`` gives the paper's identified model."""
     if str(path) == "paper":
-        from model.boucwen import BoucWenParams
+        from warpbridge.model.boucwen import BoucWenParams
 
         return ModelFile(params=BoucWenParams.paper(), meta={"source": "Lee et al. 2017, eq. (2)"})
     p = Path(path)

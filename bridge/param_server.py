@@ -28,8 +28,8 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from bridge.mavlink_env import mavlink
-from bridge.params import ParamError, ParamStore
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.bridge.params import ParamError, ParamStore
 
 log = logging.getLogger(__name__)
 

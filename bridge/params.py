@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bridge.atomic import write_text_atomic
+from warpbridge.bridge.atomic import write_text_atomic
 
 log = logging.getLogger(__name__)
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bridge.errors import UserError
+from warpbridge.bridge.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from bridge.link import NAMED_FLOAT_MAX
+from warpbridge.bridge.link import NAMED_FLOAT_MAX
 
 log = logging.getLogger(__name__)
 

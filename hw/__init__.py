@@ -16,8 +16,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from hw.base import NullSensor, ServoOutput, WarpSensor, parse_serial_spec
-from hw.errors import DeviceError
+from warpbridge.hw.base import NullSensor, ServoOutput, WarpSensor, parse_serial_spec
+from warpbridge.hw.errors import DeviceError
 
 __all__ = ["DeviceError", "ServoOutput", "WarpSensor", "open_sensor", "open_servo"]
 
@@ -46,12 +46,12 @@ def open_servo(
     """
     kind, rest = _split(spec)
     if kind == "maestro":
-        from hw.maestro import DEFAULT_BAUD, Maestro
+        from warpbridge.hw.maestro import DEFAULT_BAUD, Maestro
 
         url, baud = parse_serial_spec(rest, DEFAULT_BAUD)
         return Maestro(url, baud, limits=limits, **options)
     if kind == "fc":
-        from hw.fc_outputs import AUTOPILOTS, FcOutputs
+        from warpbridge.hw.fc_outputs import AUTOPILOTS, FcOutputs
 
         if mavlink_sender is None:
             raise ValueError("servo spec 'fc:' needs a MAVLink connection (mavlink_sender)")
@@ -63,7 +63,7 @@ def open_servo(
         tc = options.pop("target_component", None) or getattr(mavlink_sender, "target_component", 1) or 1
         return FcOutputs(mavlink_sender, ts, tc, autopilot, limits=limits, **options)
     if kind == "loop":
-        from hw.loop import LoopBackend
+        from warpbridge.hw.loop import LoopBackend
 
         return LoopBackend(**options)
     raise ValueError(f"unknown servo spec {spec!r}: use maestro:<device>[,baud], fc:, or loop:")
@@ -80,7 +80,7 @@ def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpS
     if kind == "none":
         return NullSensor()
     if kind == "maestro":
-        from hw.maestro import DEFAULT_BAUD, Maestro
+        from warpbridge.hw.maestro import DEFAULT_BAUD, Maestro
 
         same_port = not rest.strip() or parse_serial_spec(rest, 0)[0] == getattr(shared_servo, "url", None)
         if isinstance(shared_servo, Maestro) and same_port:
@@ -90,12 +90,12 @@ def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpS
         url, baud = parse_serial_spec(rest, DEFAULT_BAUD)
         return Maestro(url, baud, **options)
     if kind == "line":
-        from hw.line_sensor import DEFAULT_BAUD, LineSensor
+        from warpbridge.hw.line_sensor import DEFAULT_BAUD, LineSensor
 
         url, baud = parse_serial_spec(rest, DEFAULT_BAUD)
         return LineSensor(url, baud, **options)
     if kind == "loop":
-        from hw.loop import LoopBackend
+        from warpbridge.hw.loop import LoopBackend
 
         if isinstance(shared_servo, LoopBackend):
             return shared_servo

@@ -20,7 +20,7 @@ from typing import Protocol, runtime_checkable
 
 import serial
 
-from hw.errors import DeviceError
+from warpbridge.hw.errors import DeviceError
 
 try:
     import termios

@@ -30,8 +30,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from hw.base import check_pulse
-from hw.errors import DeviceError
+from warpbridge.hw.base import check_pulse
+from warpbridge.hw.errors import DeviceError
 
 log = logging.getLogger(__name__)
 

@@ -20,8 +20,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from hw.base import SerialDevice
-from hw.errors import DeviceError
+from warpbridge.hw.base import SerialDevice
+from warpbridge.hw.errors import DeviceError
 
 log = logging.getLogger(__name__)
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from hw.base import check_pulse
-from hw.errors import DeviceError
+from warpbridge.hw.base import check_pulse
+from warpbridge.hw.errors import DeviceError
 
 Counts = dict[int, float] | Callable[[int], float | None]
 

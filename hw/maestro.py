@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 
-from hw.base import SerialDevice, check_pulse
+from warpbridge.hw.base import SerialDevice, check_pulse
 
 log = logging.getLogger(__name__)
 

@@ -41,8 +41,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from model import kernels as K
-from model.boucwen import BoucWenParams, rest_warp
+from warpbridge.model import kernels as K
+from warpbridge.model.boucwen import BoucWenParams, rest_warp
 
 SHIFT_MM = 0.05  # input shift of the offset shadow model
 SCALE = 0.01  # relative input scaling of the gain shadow model

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from model import kernels as K
+from warpbridge.model import kernels as K
 
 PAPER_B = (19.8351, -8.6135, 0.8325, -3.1266, 10.6984, -18.5)
 

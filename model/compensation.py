@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from model.boucwen import BoucWenParams, Stepper
-from model.effects import Effects, dynamic_pressure_kpa
-from model.plant import Plant
+from warpbridge.model.boucwen import BoucWenParams, Stepper
+from warpbridge.model.effects import Effects, dynamic_pressure_kpa
+from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
 INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")

@@ -28,10 +28,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from model.boucwen import BoucWenParams, forward, rest_warp
-from model.diag_kernels import forward_run_capped
-from model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
-from model.identify import reversal_indices, warmup_end
+from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
+from warpbridge.model.diag_kernels import forward_run_capped
+from warpbridge.model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
+from warpbridge.model.identify import reversal_indices, warmup_end
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +77,7 @@ def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float 
     if chunk_s is None:  # ~96 chunks, 5 samples to 1 s long
         scored_s = (t[-1] - t[start]) * len(SCORE_PATTERN) / n_blocks
         chunk_s = min(1.0, max(scored_s / 96.0, 5.0 / fs))
-    from model.diag_stats import chunk_ids
+    from warpbridge.model.diag_stats import chunk_ids
 
     chunks = chunk_ids(score, t, chunk_s)
     blocks = []

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from model import kernels as K
+from warpbridge.model import kernels as K
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model.diag_stats import band_table, change_point, effective_n, xcorr_lag
-from model.effects import dynamic_pressure_kpa
+from warpbridge.model.diag_stats import band_table, change_point, effective_n, xcorr_lag
+from warpbridge.model.effects import dynamic_pressure_kpa
 
 PHASES = ("loading", "unloading", "after reversal to loading", "after reversal to unloading")
 REVERSAL_WINDOW = 0.1  # of the input span: travel after a reversal that counts as "just after"

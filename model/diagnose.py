@@ -37,12 +37,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from model.diag_fit import Fit, Problem, Split
-from model.diag_stats import effective_n, input_independence, ljung_box, paired_gain, prewhiten
-from model.diag_where import Cells, cells, gap_closed, split
-from model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
-from model.identify import noise_floor
-from model.modelfile import FitQuality, ModelFile
+from warpbridge.model.diag_fit import Fit, Problem, Split
+from warpbridge.model.diag_stats import effective_n, input_independence, ljung_box, paired_gain, prewhiten
+from warpbridge.model.diag_where import Cells, cells, gap_closed, split
+from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from warpbridge.model.identify import noise_floor
+from warpbridge.model.modelfile import FitQuality, ModelFile
 
 log = logging.getLogger(__name__)
 

@@ -32,8 +32,8 @@ import numpy as np
 from numba import njit, prange
 from scipy.optimize import differential_evolution, minimize
 
-from model import kernels as K
-from model.boucwen import BoucWenParams, forward, rest_warp
+from warpbridge.model import kernels as K
+from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 
 log = logging.getLogger(__name__)
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from model.boucwen import BoucWenParams
-from model.effects import Effects
-from model.plant import Plant
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import Effects
+from warpbridge.model.plant import Plant
 
 FORMAT = "warpbridge-model/1"
 

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from model import kernels as K
-from model.boucwen import BoucWenParams, forward, rest_warp
-from model.effects import Effects, apply_input_effects, apply_output_effects, dynamic_pressure_kpa
+from warpbridge.model import kernels as K
+from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
+from warpbridge.model.effects import Effects, apply_input_effects, apply_output_effects, dynamic_pressure_kpa
 
 
 @dataclass(frozen=True)

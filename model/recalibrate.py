@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from model import excitation as X
-from model.adapt import fold_pretension
-from model.boucwen import BoucWenParams, forward
-from model.effects import lagged
-from model.identify import noise_floor
+from warpbridge.model import excitation as X
+from warpbridge.model.adapt import fold_pretension
+from warpbridge.model.boucwen import BoucWenParams, forward
+from warpbridge.model.effects import lagged
+from warpbridge.model.identify import noise_floor
 
 SWEEP_S = 4.0  # the opening sweep: up to the top of the range, down to the bottom
 WARMUP_S = 2.0  # not scored: the model's state is unknown until the sweep has wiped it
@@ -230,7 +230,7 @@ def refit_full(base: BoucWenParams, t, u, w, *, lag_s: float = 0.02, heldout_fra
                rule: AcceptRule = AcceptRule(), old: BoucWenParams | None = None, seed: int = 0,
                progress=None, maxiter: int = 60) -> RefitResult:
     """Re-identify the whole Bouc-Wen model on the calibration (DE + Nelder-Mead), judged like ``refit``."""
-    from model.identify import identify
+    from warpbridge.model.identify import identify
 
     t, u, w = _check(t, u, w)
     train, held = _split(t, heldout_frac)

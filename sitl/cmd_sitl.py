@@ -47,14 +47,14 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.config import parse_config
-from bridge.controller import MODES
-from bridge.errors import UserError
-from model.boucwen import BoucWenParams
-from model.effects import EFFECT_FIELDS, Effects
-from model.modelfile import ModelFile
-from model.plant import Plant
-from sitl.lockstep import (
+from warpbridge.bridge.config import parse_config
+from warpbridge.bridge.controller import MODES
+from warpbridge.bridge.errors import UserError
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import EFFECT_FIELDS, Effects
+from warpbridge.model.modelfile import ModelFile
+from warpbridge.model.plant import Plant
+from warpbridge.sitl.lockstep import (
     MERGE_S,
     SETTLE_S,
     RunResult,
@@ -65,10 +65,10 @@ from sitl.lockstep import (
     rig_config,
     run_lockstep,
 )
-from sitl.maestro_emu import MaestroEmulator
-from sitl.report import comparison_table, plot_run, run_table
-from sitl.scenarios import SCENARIO_NAMES, WINGS, Rig, Scenario, make_scenario
-from sitl.wing import SITL_AERO_LOAD, SimWing, WingSpec
+from warpbridge.sitl.maestro_emu import MaestroEmulator
+from warpbridge.sitl.report import comparison_table, plot_run, run_table
+from warpbridge.sitl.scenarios import SCENARIO_NAMES, WINGS, Rig, Scenario, make_scenario
+from warpbridge.sitl.wing import SITL_AERO_LOAD, SimWing, WingSpec
 
 log = logging.getLogger(__name__)
 
@@ -399,7 +399,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         print(f"sitl: starting the bridge (Maestro emulator on {pty}) ...", flush=True)
         with (out / "bridge.log").open("w") as blog:
             bridge = subprocess.Popen(
-                [sys.executable, "-m", "bridge.cli", "-v", "run", "--config", str(cfg_path)],
+                [sys.executable, "-m", "warpbridge.bridge.cli", "-v", "run", "--config", str(cfg_path)],
                 stdout=blog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         children = ((bridge, "bridge", "bridge.log"),)
         _wait_until(lambda: bool(vrig.reads["left"]), vrig, children, out, "the bridge to start its loop")
@@ -408,7 +408,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         t_mock = vrig.now()
         with (out / "mock-autopilot.log").open("w") as mlog:
             mock = subprocess.Popen(
-                [sys.executable, "-m", "sitl.mock_autopilot", "--fc-port", str(fc_port), "--gcs-port", str(gcs_port),
+                [sys.executable, "-m", "warpbridge.sitl.mock_autopilot",
+                 "--fc-port", str(fc_port), "--gcs-port", str(gcs_port),
                  "--autopilot", args.autopilot, "--roll-file", str(roll_csv), "--seed", str(args.seed), "-v"],
                 stdout=mlog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         children = ((mock, "mock autopilot", "mock-autopilot.log"), (bridge, "bridge", "bridge.log"))

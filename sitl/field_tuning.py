@@ -29,15 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.app import Bridge
-from bridge.calibrate import CalState
-from model.boucwen import BoucWenParams, inverse
-from model.effects import Effects
-from model.plant import Plant, PlantStepper
-from sitl.lockstep import SETTLE_S, FcOutputs, make_wings, rig_config, rms_error
-from sitl.scenarios import WINGS, Rig, make_scenario
-from sitl.sim_link import SimLinkBase
-from sitl.wing import SimWing, WingSpec
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.calibrate import CalState
+from warpbridge.model.boucwen import BoucWenParams, inverse
+from warpbridge.model.effects import Effects
+from warpbridge.model.plant import Plant, PlantStepper
+from warpbridge.sitl.lockstep import SETTLE_S, FcOutputs, make_wings, rig_config, rms_error
+from warpbridge.sitl.scenarios import WINGS, Rig, make_scenario
+from warpbridge.sitl.sim_link import SimLinkBase
+from warpbridge.sitl.wing import SimWing, WingSpec
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model.effects import dynamic_pressure_kpa
+from warpbridge.model.effects import dynamic_pressure_kpa
 
 PAPER_SHEDDING_HZ = 110.0  # at the paper's 7 m/s
 PAPER_SHEDDING_AT_MS = 7.0

@@ -31,14 +31,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bridge.app import Bridge
-from bridge.config import Config, WingConfig, parse_config
-from bridge.controller import MODES, WingController
-from model.boucwen import BoucWenParams
-from sitl.gust import Gust, GustSpec
-from sitl.scenarios import WINGS, Rig, Scenario, make_scenario
-from sitl.sim_link import SimLinkBase
-from sitl.wing import Flow, SimWing, SteadyFlow, WingSpec
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.config import Config, WingConfig, parse_config
+from warpbridge.bridge.controller import MODES, WingController
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.sitl.gust import Gust, GustSpec
+from warpbridge.sitl.scenarios import WINGS, Rig, Scenario, make_scenario
+from warpbridge.sitl.sim_link import SimLinkBase
+from warpbridge.sitl.wing import Flow, SimWing, SteadyFlow, WingSpec
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl.lockstep import PAPER_BENCH_RMS, CompareRow, RunResult
+from warpbridge.sitl.lockstep import PAPER_BENCH_RMS, CompareRow, RunResult
 
 MODE_LABEL = {"open": "open loop", "pi": "PI only", "ff": "feed-forward", "ff+pi": "feed-forward + PI"}
 

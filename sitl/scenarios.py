@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from model import excitation
-from sitl.flex_sensor import FlexSensorSpec
-from sitl.gust import GustSpec
-from sitl.servo_model import ServoSpec
+from warpbridge.model import excitation
+from warpbridge.sitl.flex_sensor import FlexSensorSpec
+from warpbridge.sitl.gust import GustSpec
+from warpbridge.sitl.servo_model import ServoSpec
 
 PAPER_KP, PAPER_KI = 7.0, 1.0  # Lee et al. (2017), sec. 5: deg of servo horn per deg of warp error (and per s)
 SCENARIO_NAMES = ("random", "steps", "doublet", "sweep", "gust7", "gust12")

@@ -22,11 +22,11 @@ from typing import Protocol
 
 import numpy as np
 
-from model.boucwen import BoucWenParams
-from model.effects import Effects
-from model.plant import Plant, PlantStepper
-from sitl.flex_sensor import FlexSensor, FlexSensorSpec
-from sitl.servo_model import ServoModel, ServoSpec
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import Effects
+from warpbridge.model.plant import Plant, PlantStepper
+from warpbridge.sitl.flex_sensor import FlexSensor, FlexSensorSpec
+from warpbridge.sitl.servo_model import ServoModel, ServoSpec
 
 # The SITL's default wing is the paper's, with a small aerodynamic load: about 4 % of the
 # warp and 0.1 deg lost at 12 m/s (q = 0.088 kPa); nothing on the bench (V = 0).

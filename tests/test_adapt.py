@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from model.adapt import AdaptConfig, AdaptState, PretensionEstimator, fold_pretension
-from model.boucwen import BoucWenParams, forward, inverse
-from model.effects import Effects
-from model.excitation import filtered_random
-from model.plant import Plant
+from warpbridge.model.adapt import AdaptConfig, AdaptState, PretensionEstimator, fold_pretension
+from warpbridge.model.boucwen import BoucWenParams, forward, inverse
+from warpbridge.model.effects import Effects
+from warpbridge.model.excitation import filtered_random
+from warpbridge.model.plant import Plant
 
 P = BoucWenParams.paper()
 DT = 0.01

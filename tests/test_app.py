@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from helpers import free_udp_port
 
-from bridge.app import run_bridge
-from bridge.config import load_config
-from bridge.mavlink_env import mavlink, mavutil
-from hw.loop import LoopBackend
+from warpbridge.bridge.app import run_bridge
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.hw.loop import LoopBackend
 
 
 def write_config(tmp_path: Path, port: int) -> Path:

@@ -9,11 +9,11 @@ import time
 import pytest
 from test_bridge_process import Gcs, config_text, free_udp_port, wait_for
 
-from bridge.app import Bridge, run_bridge
-from bridge.config import load_config
-from bridge.link import FcLink
-from bridge.mavlink_env import mavlink, mavutil
-from sitl.mock_autopilot import MockAutopilot
+from warpbridge.bridge.app import Bridge, run_bridge
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.sitl.mock_autopilot import MockAutopilot
 
 
 def test_injected_link_status_waits_for_the_fc_and_servo_rate_applies_live(tmp_path):

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from bridge.cli import main
-from model.boucwen import BoucWenParams
-from model.modelfile import ModelFile
+from warpbridge.bridge.cli import main
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.modelfile import ModelFile
 
 SENTINEL = "previous output, must survive a failed run\n"
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from model.boucwen import BoucWenParams, Stepper, forward, inverse
-from model.excitation import filtered_random, multisine_reversals
+from warpbridge.model.boucwen import BoucWenParams, Stepper, forward, inverse
+from warpbridge.model.excitation import filtered_random, multisine_reversals
 
 P = BoucWenParams.paper()
 
@@ -142,7 +142,7 @@ def test_params_validate_and_round_trip():
 def test_a_long_move_from_rest_into_a_stiff_saturation_stays_accurate():
     """Large A and n: z is soft near 0 and very stiff at saturation, so a step sized where it starts
     would jump straight past saturation (this once returned NaN); it must match a chain of tiny steps."""
-    from model import kernels as K
+    from warpbridge.model import kernels as K
 
     p = BoucWenParams(a1=-0.0205, a2=0.712, a3=0.7958, az=0.5369, A=8.29, n=4.33,
                       b=(23.46, -11.37, 0.773, -3.935, 14.75, -11.14)).to_array()
@@ -159,7 +159,7 @@ def test_a_long_move_from_rest_into_a_stiff_saturation_stays_accurate():
 def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
     """Near z = 0 the hysteretic state is soft but curves sharply on its way out: one move must land
     where many tiny ones do, whatever the sample spacing."""
-    from model import kernels as K
+    from warpbridge.model import kernels as K
 
     p = P.to_array()
     big = K.integrate_z(p, 0.5, z0, 0.5 + h)
@@ -173,8 +173,8 @@ def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
 
 @pytest.mark.parametrize("effects", ["none", "slack"])
 def test_plant_stepper_gives_identical_results_to_plant_simulate(effects):
-    from model.effects import Effects
-    from model.plant import Plant, PlantStepper
+    from warpbridge.model.effects import Effects
+    from warpbridge.model.plant import Plant, PlantStepper
 
     e = Effects() if effects == "none" else Effects(backlash_mm=0.2, pretension_offset_mm=0.3, pretension_gain=0.9)
     plant = Plant(P, e)

@@ -24,11 +24,11 @@ from typing import Any
 import pytest
 from helpers import free_udp_port
 
-from bridge.controller import straight_line
-from bridge.mavlink_env import mavlink, mavutil
-from model.boucwen import BoucWenParams
-from sitl.maestro_emu import MaestroEmulator
-from sitl.mock_autopilot import MockAutopilot
+from warpbridge.bridge.controller import straight_line
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.sitl.maestro_emu import MaestroEmulator
+from warpbridge.sitl.mock_autopilot import MockAutopilot
 
 PULSE_ZERO, MM_PER_US = 1200.0, 0.02
 COUNTS, DEG = (100.0, 1000.0), (0.0, 15.0)
@@ -54,7 +54,7 @@ def counts_for_deg(w: float) -> float:
 def warpbridge_command() -> list[str]:
     """The installed console script next to this interpreter, else the module."""
     script = Path(sys.executable).with_name("warpbridge")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "bridge.cli"]
+    return [str(script)] if script.exists() else [sys.executable, "-m", "warpbridge.bridge.cli"]
 
 
 def config_text(fc_port: int, maestro: Path, *, mode: str = "ff+pi", kp: float = 7.0, ki: float = 1.0,

@@ -9,16 +9,16 @@ from dataclasses import replace
 
 import pytest
 
-from bridge.app import Bridge
-from bridge.calibrate import CalState, cal_path
-from bridge.mavlink_env import mavlink
-from bridge.params import ParamError
-from model.boucwen import BoucWenParams
-from model.effects import Effects
-from sitl.field_tuning import DriftingPretension, SimBoard, SimLink
-from sitl.lockstep import make_wings, rig_config
-from sitl.scenarios import Rig, make_scenario
-from sitl.wing import WingSpec
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.calibrate import CalState, cal_path
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.bridge.params import ParamError
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import Effects
+from warpbridge.sitl.field_tuning import DriftingPretension, SimBoard, SimLink
+from warpbridge.sitl.lockstep import make_wings, rig_config
+from warpbridge.sitl.scenarios import Rig, make_scenario
+from warpbridge.sitl.wing import WingSpec
 
 RIGGED = Effects(pretension_offset_mm=0.7, pretension_gain=1.08)
 
@@ -166,7 +166,7 @@ def test_a_model_that_still_fits_is_kept_and_the_reason_reported(tmp_path):
 
 
 def test_online_adaptation_moves_the_feed_forward_and_returns_when_switched_off(rig):
-    from sitl.lockstep import FcOutputs
+    from warpbridge.sitl.lockstep import FcOutputs
 
     rig.bridge.store.set("WB_ADAPT", 1)
     rig.link.armed = True

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from bridge.cli import main
+from warpbridge.bridge.cli import main
 
 
 def run(*args):

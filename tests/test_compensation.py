@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from model.boucwen import BoucWenParams
-from model.compensation import Compensator
-from model.effects import Effects
-from model.excitation import filtered_random
-from model.plant import Plant, PlantStepper
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.compensation import Compensator
+from warpbridge.model.effects import Effects
+from warpbridge.model.excitation import filtered_random
+from warpbridge.model.plant import Plant, PlantStepper
 
 P = BoucWenParams.paper()
 

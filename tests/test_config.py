@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from bridge.config import load_config
-from bridge.errors import UserError
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.errors import UserError
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "warpbridge.example.toml"
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from bridge.controller import MODES, Flags, WingController, straight_line
-from bridge.mixer import WingMix
-from model.boucwen import BoucWenParams, Stepper
-from model.excitation import filtered_random
+from warpbridge.bridge.controller import MODES, Flags, WingController, straight_line
+from warpbridge.bridge.mixer import WingMix
+from warpbridge.model.boucwen import BoucWenParams, Stepper
+from warpbridge.model.excitation import filtered_random
 
 P = BoucWenParams.paper()
 DT = 0.01
@@ -203,9 +203,9 @@ def test_unknown_mode_is_refused():
 
 def test_a_model_files_aero_load_and_backlash_are_inverted_in_the_feed_forward():
     """ff through an augmented model: the loaded, slack wing still reaches the setpoint."""
-    from model.effects import Effects
-    from model.excitation import filtered_random
-    from model.plant import Plant, PlantStepper
+    from warpbridge.model.effects import Effects
+    from warpbridge.model.excitation import filtered_random
+    from warpbridge.model.plant import Plant, PlantStepper
 
     effects = Effects(aero_gain_per_kpa=1.5, aero_deg_per_kpa=2.0, backlash_mm=0.3)
     t = np.arange(0, 10, 0.01)

@@ -6,8 +6,8 @@ import csv
 
 import pytest
 
-from bridge.cyclelog import COLUMNS, CycleLog
-from bridge.loop_timer import LoopTimer
+from warpbridge.bridge.cyclelog import COLUMNS, CycleLog
+from warpbridge.bridge.loop_timer import LoopTimer
 
 
 class FakeClock:

@@ -8,18 +8,18 @@ import math
 import numpy as np
 import pytest
 
-from bridge.cli import main as cli
-from bridge.logfile import write_csv_atomic
-from bridge.modelio import load_model, save_model
-from model.boucwen import BoucWenParams, inverse
-from model.diag_fit import Problem, make_split
-from model.diag_stats import paired_gain
-from model.diag_where import PHASES, phase_labels
-from model.diagnose import diagnose
-from model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
-from model.excitation import filtered_random
-from model.modelfile import FitQuality, ModelFile
-from model.plant import Plant
+from warpbridge.bridge.cli import main as cli
+from warpbridge.bridge.logfile import write_csv_atomic
+from warpbridge.bridge.modelio import load_model, save_model
+from warpbridge.model.boucwen import BoucWenParams, inverse
+from warpbridge.model.diag_fit import Problem, make_split
+from warpbridge.model.diag_stats import paired_gain
+from warpbridge.model.diag_where import PHASES, phase_labels
+from warpbridge.model.diagnose import diagnose
+from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from warpbridge.model.excitation import filtered_random
+from warpbridge.model.modelfile import FitQuality, ModelFile
+from warpbridge.model.plant import Plant
 
 FS = 200.0
 DURATION = 20.0

@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 from helpers import ManualClock, free_udp_port
 
-from bridge.app import Bridge
-from bridge.config import load_config
-from bridge.mavlink_env import mavlink
-from hw.loop import LoopBackend
-from sitl.maestro_emu import MaestroEmulator
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.hw.loop import LoopBackend
+from warpbridge.sitl.maestro_emu import MaestroEmulator
 
 DT = 0.01
 LIMITS_US = (1100.0, 1900.0)

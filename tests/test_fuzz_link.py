@@ -23,10 +23,10 @@ from helpers import ManualClock, drain_mavlink, free_udp_port
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bridge.app import Bridge
-from bridge.config import load_config
-from bridge.mavlink_env import mavlink
-from hw.loop import LoopBackend
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.hw.loop import LoopBackend
 
 LIMITS = {0: (1100.0, 1900.0), 1: (1200.0, 1800.0)}  # servo channel -> configured pulse range
 DT = 0.01  # 100 Hz loop

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hw.calibration import SensorCalibration, ServoCalibration
+from warpbridge.hw.calibration import SensorCalibration, ServoCalibration
 
 SERVO = {"pulse_min_us": 1000.0, "pulse_max_us": 2000.0, "pulse_zero_us": 1100.0, "mm_per_us": 0.02}
 

@@ -10,9 +10,9 @@ from helpers import free_udp_port
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-import hw
-from hw.errors import DeviceError
-from hw.fc_outputs import FcOutputs
+from warpbridge import hw
+from warpbridge.hw.errors import DeviceError
+from warpbridge.hw.fc_outputs import FcOutputs
 
 
 class RecordingMav:

@@ -7,9 +7,9 @@ import tty
 
 import pytest
 
-import hw
-from hw.errors import DeviceError
-from hw.line_sensor import LineSensor, parse_line
+from warpbridge import hw
+from warpbridge.hw.errors import DeviceError
+from warpbridge.hw.line_sensor import LineSensor, parse_line
 
 
 class Board:

@@ -7,12 +7,12 @@ import math
 import pytest
 import serial
 
-import hw
-from hw.base import Backoff, NullSensor, parse_serial_spec
-from hw.errors import DeviceError
-from hw.loop import LoopBackend
-from hw.maestro import NO_REPLY, Maestro, error_names
-from sitl.maestro_emu import PROTOCOL_ERROR, MaestroEmulator
+from warpbridge import hw
+from warpbridge.hw.base import Backoff, NullSensor, parse_serial_spec
+from warpbridge.hw.errors import DeviceError
+from warpbridge.hw.loop import LoopBackend
+from warpbridge.hw.maestro import NO_REPLY, Maestro, error_names
+from warpbridge.sitl.maestro_emu import PROTOCOL_ERROR, MaestroEmulator
 
 
 class Board:

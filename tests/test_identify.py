@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from model.boucwen import BoucWenParams, forward, inverse
-from model.excitation import filtered_random, multisine_reversals
-from model.identify import compress_path, identify, noise_floor, reversal_indices
+from warpbridge.model.boucwen import BoucWenParams, forward, inverse
+from warpbridge.model.excitation import filtered_random, multisine_reversals
+from warpbridge.model.identify import compress_path, identify, noise_floor, reversal_indices
 
 P = BoucWenParams.paper()
 FS = 200.0

@@ -9,9 +9,9 @@ import time
 import pytest
 from helpers import free_udp_port
 
-from bridge.link import FcLink
-from bridge.mavlink_env import mavlink, mavutil
-from bridge.telemetry import Telemetry
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.bridge.telemetry import Telemetry
 
 
 class FakeClock:

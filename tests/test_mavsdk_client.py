@@ -13,11 +13,11 @@ import time
 import pytest
 from helpers import free_udp_port
 
-from bridge.link import FcLink
-from bridge.param_server import ParamServer
-from bridge.params import ParamSpec, ParamStore
-from bridge.telemetry import Telemetry
-from sitl.mock_autopilot import MockAutopilot
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.param_server import ParamServer
+from warpbridge.bridge.params import ParamSpec, ParamStore
+from warpbridge.bridge.telemetry import Telemetry
+from warpbridge.sitl.mock_autopilot import MockAutopilot
 
 mavsdk = pytest.importorskip("mavsdk", reason="mavsdk not installed (pip install mavsdk)")
 try:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.mixer import Mixer, WingMix
+from warpbridge.bridge.mixer import Mixer, WingMix
 
 
 def wing(ch: int, reverse: bool, bias: float = 0.0, mx: float = 8.0, lo=1100, trim=1500, hi=1900) -> WingMix:

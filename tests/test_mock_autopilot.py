@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from helpers import free_udp_port
 
-from bridge.link import FcLink
-from bridge.mavlink_env import mavlink, mavutil
-from bridge.param_server import ParamServer
-from bridge.params import ParamSpec, ParamStore
-from bridge.telemetry import Telemetry
-from sitl.mock_autopilot import CsvRoll, MockAutopilot, SineRoll, load_scenario
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.bridge.param_server import ParamServer
+from warpbridge.bridge.params import ParamSpec, ParamStore
+from warpbridge.bridge.telemetry import Telemetry
+from warpbridge.sitl.mock_autopilot import CsvRoll, MockAutopilot, SineRoll, load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -231,7 +231,7 @@ def test_csv_roll_source_and_scenarios(tmp_path):
     with pytest.raises(ValueError, match="'t'"):
         CsvRoll(bad)
     assert isinstance(load_scenario("sine"), SineRoll)
-    assert load_scenario("sitl.mock_autopilot:SineRoll") is SineRoll
+    assert load_scenario("warpbridge.sitl.mock_autopilot:SineRoll") is SineRoll
     with pytest.raises(ValueError):
         load_scenario("nonsense")
 
@@ -246,7 +246,7 @@ def test_runs_as_a_process_with_a_roll_file(tmp_path):
         [
             sys.executable,
             "-m",
-            "sitl.mock_autopilot",
+            "warpbridge.sitl.mock_autopilot",
             "--fc-port",
             str(port),
             "--autopilot",

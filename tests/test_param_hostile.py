@@ -25,12 +25,12 @@ from helpers import ManualClock, free_udp_port
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bridge.app import Bridge
-from bridge.config import load_config
-from bridge.mavlink_env import mavlink
-from bridge.param_server import ParamServer, param_name
-from bridge.params import FORMAT, ParamSpec, ParamStore
-from hw.loop import LoopBackend
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.bridge.param_server import ParamServer, param_name
+from warpbridge.bridge.params import FORMAT, ParamSpec, ParamStore
+from warpbridge.hw.loop import LoopBackend
 
 REPO = Path(__file__).resolve().parents[1]
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
@@ -275,8 +275,8 @@ def test_any_param_set_changes_a_value_only_when_valid(name, value, ptype, ts, t
 KILLER = textwrap.dedent(
     """
     import os, signal, sys
-    from bridge import params
-    from bridge.params import ParamSpec, ParamStore
+    from warpbridge.bridge import params
+    from warpbridge.bridge.params import ParamSpec, ParamStore
     path, kill_at = sys.argv[1], int(sys.argv[2])
     specs = [ParamSpec("A", 0, 0, 1000, "a", integer=True), ParamSpec("B", 0, 0, 1000, "b")]
     store = ParamStore(specs, path, background=False)

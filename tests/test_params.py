@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from helpers import free_udp_port
 
-from bridge.link import FcLink
-from bridge.mavlink_env import mavlink, mavutil
-from bridge.param_server import ParamServer, param_name
-from bridge.params import ParamError, ParamSpec, ParamStore
+from warpbridge.bridge.link import FcLink
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.bridge.param_server import ParamServer, param_name
+from warpbridge.bridge.params import ParamError, ParamSpec, ParamStore
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -129,7 +129,7 @@ def test_invalid_value_in_file_keeps_default(tmp_path):
 WRITER = textwrap.dedent(
     """
     import sys
-    from bridge.params import ParamSpec, ParamStore
+    from warpbridge.bridge.params import ParamSpec, ParamStore
     specs = [ParamSpec("A", 0, 0, 1000, "a", integer=True), ParamSpec("B", 0, 0, 1000, "b", integer=True)]
     store = ParamStore(specs, sys.argv[1], background=False)
     print("ready", flush=True)

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from model.boucwen import BoucWenParams, inverse
-from model.effects import Effects
-from model.plant import Plant
-from model.recalibrate import AcceptRule, RefitResult, Transform, accept, excitation, refit
+from warpbridge.model.boucwen import BoucWenParams, inverse
+from warpbridge.model.effects import Effects
+from warpbridge.model.plant import Plant
+from warpbridge.model.recalibrate import AcceptRule, RefitResult, Transform, accept, excitation, refit
 
 P = BoucWenParams.paper()
 DT = 0.01

@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from helpers import ManualClock, drain_mavlink, free_udp_port
 
-from bridge.app import Bridge
-from bridge.config import load_config
-from bridge.errors import UserError
-from bridge.mavlink_env import mavlink
-from bridge.signing import Signer, key_from_passphrase, load_key, now_timestamp, parse_key
-from hw.loop import LoopBackend
+from warpbridge.bridge.app import Bridge
+from warpbridge.bridge.config import load_config
+from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.mavlink_env import mavlink
+from warpbridge.bridge.signing import Signer, key_from_passphrase, load_key, now_timestamp, parse_key
+from warpbridge.hw.loop import LoopBackend
 
 KEY = key_from_passphrase("correct horse battery staple")
 WRONG = key_from_passphrase("incorrect horse battery staple")

@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from sitl.cmd_sitl import join_reads, parse_effects
-from sitl.lockstep import run_lockstep
-from sitl.scenarios import make_scenario
+from warpbridge.sitl.cmd_sitl import join_reads, parse_effects
+from warpbridge.sitl.lockstep import run_lockstep
+from warpbridge.sitl.scenarios import make_scenario
 
 
 @pytest.mark.slow
@@ -20,7 +20,7 @@ def test_sitl_runs_the_three_processes_and_agrees_with_lockstep(tmp_path):
     # Gains in the loop's stable range: with the paper's Kp = 7 mm/deg the loop is marginal and a
     # scheduling gap on a busy machine sets it ringing, which no second run reproduces exactly.
     proc = subprocess.run(
-        [sys.executable, "-m", "bridge.cli", "sitl", "--duration", "6", "--kp", "0.7", "--ki", "20",
+        [sys.executable, "-m", "warpbridge.bridge.cli", "sitl", "--duration", "6", "--kp", "0.7", "--ki", "20",
          "--out", str(out)],
         capture_output=True, text=True, timeout=180,
     )
@@ -56,7 +56,7 @@ def test_effects_option_parses_names_and_parameters():
     assert (e.delay_s, e.backlash_mm, e.pretension_offset_mm, e.pretension_gain) == (0.03, 0.2, 0.3, 1.1)
     assert e.aero_deg_per_kpa == 2.0
     assert set(e.active()) == {"delay", "backlash", "pretension", "aero_load"}
-    from bridge.errors import UserError
+    from warpbridge.bridge.errors import UserError
 
     for bad in ("warp=1", "delay", "delay=x", "delay=-1", "backlash=1:2"):
         with pytest.raises(UserError):

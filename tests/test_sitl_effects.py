@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model.boucwen import BoucWenParams
-from model.effects import Effects
-from model.plant import Plant
-from sitl.flex_sensor import FlexSensorSpec
-from sitl.wing import SimWing, SteadyFlow, WingSpec
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import Effects
+from warpbridge.model.plant import Plant
+from warpbridge.sitl.flex_sensor import FlexSensorSpec
+from warpbridge.sitl.wing import SimWing, SteadyFlow, WingSpec
 
 W0 = 6.0
 H = 0.001

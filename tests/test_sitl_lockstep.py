@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.lockstep import rig_config, run_lockstep
-from sitl.mock_autopilot import CsvRoll
-from sitl.scenarios import SCENARIO_NAMES, Rig, make_scenario
+from warpbridge.sitl.lockstep import rig_config, run_lockstep
+from warpbridge.sitl.mock_autopilot import CsvRoll
+from warpbridge.sitl.scenarios import SCENARIO_NAMES, Rig, make_scenario
 
 DURATION = 8.0
 
@@ -75,8 +75,8 @@ def test_lockstep_is_deterministic_and_uses_the_configured_gains():
 
 
 def test_a_wing_unlike_the_model_is_worse_in_feed_forward_only():
-    from model.effects import Effects
-    from sitl.wing import WingSpec
+    from warpbridge.model.effects import Effects
+    from warpbridge.sitl.wing import WingSpec
 
     sc = make_scenario("random", 6.0)
     nominal, _ = run_lockstep(sc, mode="ff")
@@ -85,7 +85,7 @@ def test_a_wing_unlike_the_model_is_worse_in_feed_forward_only():
 
 
 def test_lockstep_runs_the_bridge_cycle_on_ticks_and_on_each_servo_message():
-    from sitl.lockstep import Schedule
+    from warpbridge.sitl.lockstep import Schedule
 
     sc = make_scenario("random", 3.0, seed=0)
     woken, _ = run_lockstep(sc)
@@ -96,7 +96,7 @@ def test_lockstep_runs_the_bridge_cycle_on_ticks_and_on_each_servo_message():
 
 
 def test_lockstep_replays_given_cycle_times():
-    from sitl.lockstep import Schedule
+    from warpbridge.sitl.lockstep import Schedule
 
     sc = make_scenario("random", 2.0, seed=0)
     times = tuple(np.cumsum(np.r_[0.0, np.full(150, 0.01), 0.03, np.full(30, 0.004)]))  # with a 30 ms gap

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hw.calibration import SensorCalibration
-from sitl.flex_sensor import FlexSensor, FlexSensorSpec
-from sitl.gust import Gust, GustSpec, shedding_hz
-from sitl.servo_model import ServoModel, ServoSpec
-from sitl.wing import SimWing, SteadyFlow, WingSpec
+from warpbridge.hw.calibration import SensorCalibration
+from warpbridge.sitl.flex_sensor import FlexSensor, FlexSensorSpec
+from warpbridge.sitl.gust import Gust, GustSpec, shedding_hz
+from warpbridge.sitl.servo_model import ServoModel, ServoSpec
+from warpbridge.sitl.wing import SimWing, SteadyFlow, WingSpec
 
 
 def test_servo_slews_no_faster_than_its_rating():
