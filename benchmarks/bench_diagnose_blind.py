@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from plants import BenchPlant, describe, draw_plants, magnitude_for  # noqa: E402
 
 from warpbridge.bridge.cli import main as cli  # noqa: E402
-from warpbridge.bridge.logfile import write_csv_atomic  # noqa: E402
+from warpbridge.bridge.commands.logfile import write_csv_atomic  # noqa: E402
 from warpbridge.model import excitation  # noqa: E402
 from warpbridge.model.effects import EFFECT_NAMES, Effects  # noqa: E402
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbridge.bridge.cli import main as cli
-from warpbridge.bridge.logfile import write_csv_atomic
+from warpbridge.bridge.commands.logfile import write_csv_atomic
 
 # the data sit beside the repository (``<repo>/../shared/realdata/tsm-kaist``) unless told otherwise
 DEFAULT = Path(os.environ.get("WARPBRIDGE_REALDATA",

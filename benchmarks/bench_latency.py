@@ -136,7 +136,7 @@ def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
     else:
         cfg = workdir / f"{kind}.toml"
         cfg.write_text(config(port, path, wake=(kind == "bridge")))
-        cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "-v", "run", "--config", str(cfg)]
+        cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config", str(cfg)]
     proc = subprocess.Popen(cmd, cwd=workdir, env=env, stderr=subprocess.PIPE, text=True)
     fc = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
     seq = aileron_sequence(n)

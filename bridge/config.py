@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.mixer import WingMix
 
 MODES = ("open", "pi", "ff", "ff+pi")
 WINGS = ("left", "right")
@@ -266,8 +267,6 @@ def _wing(root: _Section, name: str, pwm_jitter_us: float = 2.0) -> WingConfig:
         raise c.fail("u_max_mm", f"must be greater than u_min_mm ({umin:g})")
     c.done()
     s.done()
-    from warpbridge.bridge.mixer import WingMix  # here: the mixer imports this module
-
     mix = WingMix(w["source_channel"], w["reverse"], w["pwm_min"], w["pwm_trim"], w["pwm_max"],
                   w["max_warp_deg"], w["bias_deg"])
     ctl = replace(ctl, deadband_deg=mix.jitter_deadband(pwm_jitter_us))

@@ -23,10 +23,21 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-
-from warpbridge.bridge.config import WingConfig
+from typing import Protocol
 
 PWM_MARGIN_US = 200.0  # PWM further than this outside [pwm_min, pwm_max] is invalid
+
+
+class MixSettings(Protocol):
+    """What a wing's configuration holds for the mixer (``config.WingConfig`` is one)."""
+
+    source_channel: int
+    reverse: bool
+    pwm_min: float
+    pwm_trim: float
+    pwm_max: float
+    max_warp_deg: float
+    bias_deg: float
 
 
 @dataclass(frozen=True)
@@ -42,7 +53,7 @@ class WingMix:
     bias_deg: float
 
     @classmethod
-    def from_config(cls, w: WingConfig) -> WingMix:
+    def from_config(cls, w: MixSettings) -> WingMix:
         return cls(w.source_channel, w.reverse, w.pwm_min, w.pwm_trim, w.pwm_max, w.max_warp_deg, w.bias_deg)
 
     def normalise(self, pwm: float | None) -> float | None:

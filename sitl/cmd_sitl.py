@@ -399,7 +399,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         print(f"sitl: starting the bridge (Maestro emulator on {pty}) ...", flush=True)
         with (out / "bridge.log").open("w") as blog:
             bridge = subprocess.Popen(
-                [sys.executable, "-m", "warpbridge.bridge.cli", "-v", "run", "--config", str(cfg_path)],
+                [sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config", str(cfg_path)],
                 stdout=blog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         children = ((bridge, "bridge", "bridge.log"),)
         _wait_until(lambda: bool(vrig.reads["left"]), vrig, children, out, "the bridge to start its loop")

@@ -232,7 +232,7 @@ class Rig:
         env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
         self._stderr = open(self.stderr_path, "ab")
         t0 = time.monotonic()
-        self.proc = subprocess.Popen([*warpbridge_command(), "-v", "run", "--config", str(self.config_path), *extra],
+        self.proc = subprocess.Popen([*warpbridge_command(), "run", "--config", str(self.config_path), *extra],
                                      cwd=self.tmp, env=env, stdout=subprocess.DEVNULL, stderr=self._stderr)
         assert wait_for(lambda: self.gcs.latest("WB_mode", t0) is not None or self.proc.poll() is not None, 20.0)
         assert self.proc.poll() is None, self.stderr()

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from warpbridge.bridge.cli import main as cli
-from warpbridge.bridge.logfile import write_csv_atomic
-from warpbridge.bridge.modelio import load_model, save_model
+from warpbridge.bridge.commands.logfile import write_csv_atomic
+from warpbridge.bridge.commands.modelio import load_model, save_model
 from warpbridge.model.boucwen import BoucWenParams, inverse
 from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain

@@ -11,10 +11,10 @@ import argparse
 
 import numpy as np
 
-from warpbridge.bridge.effects_spec import help_text, parse_effects
+from warpbridge.bridge.commands.effects_spec import help_text, parse_effects
+from warpbridge.bridge.commands.logfile import write_csv_atomic
+from warpbridge.bridge.commands.modelio import load_model
 from warpbridge.bridge.errors import UserError
-from warpbridge.bridge.logfile import write_csv_atomic
-from warpbridge.bridge.modelio import load_model
 from warpbridge.model import excitation
 from warpbridge.model.boucwen import inverse
 from warpbridge.model.plant import Plant

@@ -19,9 +19,9 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from warpbridge.bridge.commands.logfile import read_log, write_text_atomic
+from warpbridge.bridge.commands.modelio import load_model, save_model
 from warpbridge.bridge.errors import UserError
-from warpbridge.bridge.logfile import read_log, write_text_atomic
-from warpbridge.bridge.modelio import load_model, save_model
 from warpbridge.model.diagnose import DiagnoseOptions, diagnose
 from warpbridge.model.effects import EFFECT_NAMES
 
@@ -98,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
         rep["out_model"] = Path(args.out_model).name
     write_text_atomic(args.report, json.dumps(_json_safe(rep), indent=2, allow_nan=False) + "\n")
     if args.plot:
-        from warpbridge.bridge.diagnose_plot import plot_diagnosis
+        from warpbridge.bridge.commands.diagnose_plot import plot_diagnosis
 
         plot_diagnosis(args.plot, d, title=f"{Path(args.log).name} vs {rep['model_file']}")
     if not args.quiet:

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbridge.bridge.commands.logfile import read_log
+from warpbridge.bridge.commands.modelio import save_model
 from warpbridge.bridge.errors import UserError
-from warpbridge.bridge.logfile import read_log
-from warpbridge.bridge.modelio import save_model
 from warpbridge.model.identify import identify
 from warpbridge.model.modelfile import FitQuality, ModelFile
 
@@ -90,7 +90,7 @@ def main(args: argparse.Namespace) -> int:
     mf = ModelFile(params=res.params, fit=fit, meta=meta)
     save_model(args.output, mf)
     if args.plot:
-        from warpbridge.bridge.plots import plot_identification
+        from warpbridge.bridge.commands.plots import plot_identification
 
         plot_identification(args.plot, data.t, data.u, data.warp, res.w_pred, res.heldout_mask,
                             title=f"{Path(args.log).name}: identified generalized Bouc-Wen model")

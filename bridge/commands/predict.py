@@ -12,8 +12,8 @@ import sys
 
 import numpy as np
 
-from warpbridge.bridge.logfile import read_log, write_csv_atomic
-from warpbridge.bridge.modelio import load_model
+from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic
+from warpbridge.bridge.commands.modelio import load_model
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -40,7 +40,7 @@ def main(args: argparse.Namespace) -> int:
         rms = float(np.sqrt(np.mean((data.warp[ok] - w_pred[ok]) ** 2)))
         msg += f"; RMS error against the logged warp {rms:.4f} deg"
         if args.plot:
-            from warpbridge.bridge.plots import plot_identification
+            from warpbridge.bridge.commands.plots import plot_identification
 
             plot_identification(args.plot, data.t[ok], data.u[ok], data.warp[ok], w_pred[ok],
                                 np.zeros(int(ok.sum()), bool), title="prediction")

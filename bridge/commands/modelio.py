@@ -6,8 +6,8 @@ import json
 import os
 from pathlib import Path
 
+from warpbridge.bridge.commands.logfile import write_text_atomic
 from warpbridge.bridge.errors import UserError
-from warpbridge.bridge.logfile import write_text_atomic
 from warpbridge.model.modelfile import ModelFile
 
 
