@@ -1,0 +1,123 @@
+"""The hysteretic state z0 at the start of a log, estimated from its first samples.
+
+A log rarely starts at rest with z = 0: after the first bench run the tendon is
+already loaded. The model is algebraic in z given u and w,
+
+    z = (u - a1 w^2 - a2 w - a3) / az,
+
+so the first samples give z0 directly, up to sensor noise. That value is
+clamped to the band z can reach (the saturation limits of a long monotone
+run) and then refined by a bounded one-dimensional search on the prediction
+error over the log's opening stretch, as identification tools estimate initial
+conditions. Units: u mm, w deg, z in the model's units (mm when az = 1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from warpbridge.model.boucwen import BoucWenParams, forward
+
+GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
+OPENING_MAX = 2000  # samples over which z0 is refined (the state's influence fades after a few reversals)
+FIRST_MAX = 25  # samples averaged for the algebraic value while the input has hardly moved
+
+
+def algebraic_z(params: BoucWenParams, u, w) -> np.ndarray:
+    """z that makes the model output u at warp w, sample by sample."""
+    u = np.asarray(u, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    return (u - params.a1 * w * w - params.a2 * w - params.a3) / params.az
+
+
+def reachable_band(params: BoucWenParams, w: float) -> tuple[float, float]:
+    """(lo, hi) of z at warp w: the limits of long unloading and loading runs (may be infinite)."""
+    hi, lo = params.z_saturation(1.0 if w >= 0 else -1.0)
+    if lo > hi:
+        lo, hi = hi, lo
+    return float(lo), float(hi)
+
+
+def _quiet_start(u: np.ndarray) -> int:
+    """Number of leading samples before the input moves by more than 2 % of its span (at least 1)."""
+    span = float(np.nanmax(u) - np.nanmin(u)) if u.size else 0.0
+    if span <= 0:
+        return min(u.size, FIRST_MAX)
+    moved = np.abs(u[: FIRST_MAX] - u[0]) > 0.02 * span
+    k = int(np.argmax(moved)) if moved.any() else min(u.size, FIRST_MAX)
+    return max(1, k)
+
+
+def algebraic_z0(params: BoucWenParams, u, w) -> float:
+    """z0 from the first samples alone (median of the algebraic z), clamped to the reachable band.
+
+    What the bridge uses at start with one tendon position and one sensor reading."""
+    u = np.asarray(u, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    k = _quiet_start(u)
+    z = algebraic_z(params, u[:k], w[:k])
+    z = z[np.isfinite(z)]
+    if z.size == 0:
+        return 0.0
+    lo, hi = reachable_band(params, float(np.nanmedian(w[:k])) if np.isfinite(w[:k]).any() else 0.0)
+    return float(np.clip(np.median(z), lo, hi))
+
+
+def estimate_z0(params: BoucWenParams, u, w, *,
+                simulate: Callable[[float, int], np.ndarray] | None = None,
+                opening: int | None = None) -> float:
+    """z0 that best explains the log's opening stretch, starting from the algebraic value.
+
+    ``simulate(z0, n)`` predicts the first n warps from state z0 (default: the
+    Bouc-Wen forward map on u); give it when the model carries effects. The
+    search runs over the reachable band, widened to contain the algebraic value's
+    neighbourhood when the band is unbounded."""
+    u = np.asarray(u, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    if u.size == 0:
+        return 0.0
+    z_alg = algebraic_z0(params, u, w)
+    n = min(u.size, opening or OPENING_MAX)
+    ok = np.isfinite(w[:n])
+    if ok.sum() < 3:
+        return z_alg
+    if simulate is None:
+        def simulate(z0: float, m: int) -> np.ndarray:
+            return forward(params, u[:m], z0=z0)[0]
+
+    def cost(z0: float) -> float:
+        pred = simulate(z0, n)
+        e = pred[:n][ok] - w[:n][ok]
+        v = float(np.dot(e, e))
+        return v if np.isfinite(v) else np.inf
+
+    lo, hi = reachable_band(params, float(w[0]) if np.isfinite(w[0]) else 0.0)
+    zs = algebraic_z(params, u[:n][ok], w[:n][ok])
+    zs = zs[np.isfinite(zs)]
+    scale = float(np.ptp(zs)) if zs.size else 1.0
+    scale = max(scale, 1e-6)
+    a = max(lo, z_alg - scale) if np.isfinite(lo) else z_alg - scale
+    b = min(hi, z_alg + scale) if np.isfinite(hi) else z_alg + scale
+    if not a < b:
+        return z_alg
+    z_best, c_best = z_alg, cost(z_alg)
+    # golden-section search on [a, b]; the cost is smooth and near-unimodal in z0
+    x1, x2 = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+    f1, f2 = cost(x1), cost(x2)
+    for _ in range(40):
+        if f1 <= f2:
+            b, x2, f2 = x2, x1, f1
+            x1 = b - GOLDEN * (b - a)
+            f1 = cost(x1)
+        else:
+            a, x1, f1 = x1, x2, f2
+            x2 = a + GOLDEN * (b - a)
+            f2 = cost(x2)
+        if b - a < 1e-6 * scale:
+            break
+    for x, f in ((x1, f1), (x2, f2)):
+        if f < c_best:
+            z_best, c_best = x, f
+    return float(z_best)

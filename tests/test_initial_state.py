@@ -1,0 +1,59 @@
+"""Initial hysteretic state from the first samples of a log that does not start at rest."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from warpbridge.model.boucwen import BoucWenParams, forward, inverse
+from warpbridge.model.initial_state import algebraic_z0, estimate_z0
+
+
+def test_the_algebraic_state_is_the_hand_computed_one():
+    # a1 = 0, az = 2: z = (u - 0.5 w - 1) / 2; u = 4, w = 2 -> z = 1.0, inside the band of this model
+    p = BoucWenParams(a1=0.0, a2=0.5, a3=1.0, az=2.0, A=3.0, n=2.0, b=(0.5, 0.5, 0.0, 0.0, 0.5, 0.0))
+    assert algebraic_z0(p, np.full(5, 4.0), np.full(5, 2.0)) == pytest.approx(1.0)
+
+
+def test_the_algebraic_state_is_clamped_to_what_z_can_reach():
+    p = BoucWenParams.paper().canonical()
+    hi, lo = p.z_saturation(1.0)
+    z = algebraic_z0(p, np.full(5, 100.0), np.full(5, 2.0))  # u far above any loop
+    assert z == pytest.approx(max(hi, lo))
+
+
+@pytest.fixture(scope="module")
+def loaded_log():
+    """A plant run cut after its start: the log begins with the tendon loaded (true z known)."""
+    p = BoucWenParams.paper().canonical()
+    t = np.arange(0, 24, 0.002)
+    w_ref = 6 + 4 * np.sin(2 * np.pi * 0.3 * t) + 1.5 * np.sin(2 * np.pi * 1.1 * t + 1)
+    u, _ = inverse(p, w_ref)
+    w, z, _ = forward(p, u)
+    return p, u, w, z
+
+
+@pytest.mark.parametrize("cut", [1000, 2345, 5000])
+def test_the_estimate_recovers_the_state_the_plant_had(loaded_log, cut):
+    p, u, w, z = loaded_log
+    rng = np.random.default_rng(cut)
+    wc = w[cut:] + rng.normal(0, 0.05, w.size - cut)
+    z0 = estimate_z0(p, u[cut:], wc)
+    assert abs(z0 - z[cut]) < 0.02 * (np.ptp(z))
+
+
+def test_a_loaded_start_predicts_as_well_as_the_rest_of_the_log(loaded_log):
+    """Whole-log RMS of the right model within 1.1x of its RMS after the first 5 s (issue 11's target)."""
+    p, u, w, z = loaded_log
+    cut = 5000  # the tendon at the top of a loading run
+    rng = np.random.default_rng(0)
+    uc, wc = u[cut:], w[cut:] + rng.normal(0, 0.05, w.size - cut)
+    after = slice(2500, None)  # 5 s at 500 Hz
+
+    def rms(pred, sl=slice(None)):
+        return float(np.sqrt(np.mean((pred[sl] - wc[sl]) ** 2)))
+
+    at_rest = forward(p, uc, z0=0.0)[0]
+    estimated = forward(p, uc, z0=estimate_z0(p, uc, wc))[0]
+    assert rms(at_rest) > 1.5 * rms(at_rest, after)  # the start at rest is visibly wrong
+    assert rms(estimated) < 1.1 * rms(estimated, after)
