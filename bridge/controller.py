@@ -8,8 +8,8 @@ Modes (``MODES``; ``WB_MODE`` 0..3 in this order):
 - ``ff``: feed-forward, the inverse Bouc-Wen model (``Stepper.inverse_step``) on the setpoint;
 - ``ff+pi``: feed-forward plus PI trim; the integrator is limited to +-``i_max`` mm.
 
-Units: e in deg, Kp in mm per deg, Ki in mm per deg*s, u in mm. (The paper's Kp = 7, Ki = 1 are in
-degrees of servo horn per degree: 1.22 mm/deg and 0.175 mm/(deg s) on a 10 mm horn.)
+Units: e in deg, Kp in mm per deg, Ki in mm per deg*s, u in mm. (The paper's Kp = 7, Ki = 1 come
+without units; docs/field-tuning.md, "PI gains", converts them.)
 The model and the error see the setpoint through a play (backlash) of half-width
 ``deadband`` deg: FC PWM jitter of a few us would otherwise feed the hysteresis
 model tiny reversals, each one a jump of the loop width. The bridge sizes it from
@@ -70,7 +70,7 @@ def straight_line(params: BoucWenParams, w_max: float) -> tuple[float, float]:
 class WingController:
     """Per-wing controller; ``step(setpoint_deg, measured_deg | None, dt) -> Command``."""
 
-    def __init__(self, params: BoucWenParams, *, mode: str = "ff+pi", kp: float = 7.0, ki: float = 1.0,
+    def __init__(self, params: BoucWenParams, *, mode: str = "ff+pi", kp: float = 0.5, ki: float = 10.0,
                  i_max: float = 2.0, u_min: float = -5.0, u_max: float = 15.0, w_max: float = 8.0,
                  deadband: float = 0.0, transfer_s: float = 0.5, w0: float = 0.0) -> None:
         self.set_mode(mode)

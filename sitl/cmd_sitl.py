@@ -67,7 +67,7 @@ from warpbridge.sitl.lockstep import (
 )
 from warpbridge.sitl.maestro_emu import MaestroEmulator
 from warpbridge.sitl.report import comparison_table, plot_run, run_table
-from warpbridge.sitl.scenarios import SCENARIO_NAMES, WINGS, Rig, Scenario, make_scenario
+from warpbridge.sitl.scenarios import GAIN_SETS, SCENARIO_NAMES, WINGS, Rig, Scenario, make_scenario
 from warpbridge.sitl.wing import SITL_AERO_LOAD, SimWing, WingSpec
 
 log = logging.getLogger(__name__)
@@ -94,17 +94,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(names: {', '.join(EFFECT_FIELDS)}; two-parameter effects take a:b)")
     parser.add_argument("--model", type=Path, default=None,
                         help="MODEL.json the simulated wing follows (params and effects; default: the paper's)")
-    parser.add_argument("--bridge-model", default="paper",
-                        help="model the bridge's feed-forward uses: 'paper' or a MODEL.json (default paper)")
+    parser.add_argument("--plant", choices=("bouc-wen", "sheath"), default="bouc-wen",
+                        help="the simulated wing: bouc-wen (the paper's model, or --model's; the bridge's own model "
+                             "class) or sheath (a tendon in a sheath from the mechanics, re-rigged after its bench "
+                             "identification; not the model's class). Default bouc-wen")
+    parser.add_argument("--bridge-model", default=None,
+                        help="model the bridge's feed-forward uses: 'paper', a MODEL.json, or 'identify' (record a "
+                             "bench log of the un-rigged sheath wing and identify it first, as a user would). "
+                             "Default: paper with --plant bouc-wen, identify with --plant sheath")
     parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
     parser.add_argument("--mode", choices=MODES, default="ff+pi", help="bridge controller mode (real-time run)")
-    parser.add_argument("--kp", type=float, default=None,
-                        help=f"PI gain, mm/deg (default: {RIG_KP:g} for the simulated rig's fast servo in real time; "
-                             "in --lockstep the paper's Kp = 7 deg of servo horn per deg, 1.22 mm/deg on the "
-                             "rig's 10 mm horn, which reproduces the paper's comparison)")
+    parser.add_argument("--gains", choices=GAIN_SETS, default="default",
+                        help="PI gain set: default (the bridge's, kp {:g} mm/deg, ki {:g} mm/(deg s)), paper-horn "
+                             "(the paper's Kp = 7, Ki = 1 as degrees of servo horn per degree on the rig's 10 mm horn: "
+                             "1.22, 0.175), paper-mm (7 and 1 taken as mm/deg)".format(*Rig().gains("default")))
+    parser.add_argument("--kp", type=float, default=None, help="PI gain, mm of tendon per deg (overrides --gains)")
     parser.add_argument("--ki", type=float, default=None,
-                        help=f"PI gain, mm/(deg s) (default: {RIG_KI:g} in real time; in --lockstep the paper's "
-                             "Ki = 1 deg of horn per deg s, 0.175 mm/(deg s))")
+                        help="PI gain, mm of tendon per deg*s (overrides --gains)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the reference, gusts and noise")
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
 
@@ -112,7 +118,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # ------------------------------------------------------------------ options
 
 
-RIG_KP, RIG_KI = 0.7, 20.0  # PI gains tuned for the simulated rig's servo (real-time demo)
+def chosen_gains(args: argparse.Namespace) -> tuple[float, float]:
+    """(kp, ki) in mm/deg and mm/(deg s): the named set, with --kp / --ki over it."""
+    kp, ki = Rig().gains(args.gains)
+    return (kp if args.kp is None else args.kp), (ki if args.ki is None else args.ki)
 
 
 def parse_effects(text: str) -> Effects:
@@ -154,8 +163,18 @@ def _read_model(path: Path, what: str) -> ModelFile:
         raise UserError(f"{what}: {path}: {e}") from None
 
 
-def wing_spec(model: Path | None, effects: Effects) -> WingSpec:
-    """The simulated wing: the paper's (or MODEL.json's) plant, SITL aero load, plus ``effects``."""
+def wing_spec(model: Path | None, effects: Effects, plant: str = "bouc-wen") -> WingSpec:
+    """The simulated wing: the paper's (or MODEL.json's) plant, SITL aero load, plus ``effects``; or the
+    re-rigged sheath wing."""
+    if plant == "sheath":
+        if model is not None:
+            raise UserError("--model sets the Bouc-Wen wing's parameters; it does not apply to --plant sheath")
+        from warpbridge.sitl.like_for_like import bench_params, rigged, sheath_spec
+
+        try:
+            return sheath_spec(rigged(bench_params())).with_effects(effects)
+        except ValueError as e:
+            raise UserError(f"--effects: {e}") from None
     if model is None:
         plant = Plant(BoucWenParams.paper(), SITL_AERO_LOAD)
     else:
@@ -164,8 +183,25 @@ def wing_spec(model: Path | None, effects: Effects) -> WingSpec:
     return WingSpec(plant=plant).with_effects(effects)
 
 
+def _effects_dict(spec: WingSpec) -> dict:
+    return spec.plant.effects.to_dict() if isinstance(spec.plant, Plant) else {}
+
+
 def bridge_params(spec: str) -> BoucWenParams:
     return BoucWenParams.paper() if spec == "paper" else _read_model(Path(spec), "--bridge-model").params
+
+
+def resolve_bridge_model(args: argparse.Namespace, out: Path) -> str:
+    """'paper' or a MODEL.json path; with 'identify', the bench sheath's log identified into ``out``."""
+    choice = args.bridge_model or ("identify" if args.plant == "sheath" else "paper")
+    if choice != "identify":
+        return choice
+    if args.plant != "sheath":
+        raise UserError("--bridge-model identify needs --plant sheath")
+    from warpbridge.sitl.like_for_like import bench_params, identify_bench
+
+    print(f"sitl: recording a bench log of the sheath wing and identifying it into {out} ...", flush=True)
+    return str(identify_bench(bench_params(), out, seed=args.seed).resolve())
 
 
 # ------------------------------------------------------------------ the real-time run
@@ -381,9 +417,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     bridge_log = out / "bridge-cycles.csv"
     t_start = time.monotonic()
     model_file = "paper" if args.bridge_model == "paper" else str(Path(args.bridge_model).resolve())
-    # the rig's servo is fast (0.1 s/60 deg): the paper's Kp = 7 sits at the stability edge of a 100 Hz loop
-    # there and real scheduling gaps set it ringing, so the demo flies gains tuned for this servo
-    kw = {"kp": RIG_KP if args.kp is None else args.kp, "ki": RIG_KI if args.ki is None else args.ki}
+    kp, ki = chosen_gains(args)
+    kw = {"kp": kp, "ki": ki}
     toml = rig.config_toml(connection=f"udpin:127.0.0.1:{fc_port}", servo_backend="maestro:PTY",
                            sensor_backend="maestro:", mode=args.mode, model_file=model_file, log=bridge_log.name,
                            params_file="params.json", **kw)
@@ -449,8 +484,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig))
     for label, sch in (("lock-step", replay), ("ideal timing", sched)):
         runs[label], _ = run_lockstep(
-            scenario, mode=args.mode, spec=spec, config=rig_config(rig, args.mode, kw["kp"], kw["ki"]),
-            controller_params=bridge_params(args.bridge_model), seed=args.seed, schedule=sch, t_end=t_to + 0.05,
+            scenario, mode=args.mode, spec=spec,
+            config=rig_config(rig, args.mode, kw["kp"], kw["ki"], model_file=model_file), seed=args.seed, schedule=sch, t_end=t_to + 0.05,
             flow_shift_s=rig_at_log0 - tau)
         runs[label].compute_rms(t_from=t_from, t_to=t_to)
     ls, ideal = runs["lock-step"], runs["ideal timing"]
@@ -468,7 +503,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         log.warning("the real-time bridge ran %d cycles on that stretch, lock-step %d: the machine was busy",
                     rt.cycles, ls.cycles)
     summary = {"scenario": name, "mode": args.mode, "duration_s": args.duration, "autopilot": args.autopilot,
-               "effects": spec.plant.effects.to_dict(), "scenario_offset_s": tau, "hold_s": HOLD_S,
+               "effects": _effects_dict(spec), "plant": args.plant, "scenario_offset_s": tau, "hold_s": HOLD_S,
                "stretch_s": [t_from, t_to],
                "schedule": {"tick_offset_s": sched.tick_offset_s, "msg_offset_s": sched.msg_offset_s,
                             "stream_start_s": sched.stream_start_s, "wake_on_message": sched.wake_on_message},
@@ -532,20 +567,28 @@ def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> No
 def main(args: argparse.Namespace) -> int:
     if not args.duration > 0:
         raise UserError("--duration must be positive")
-    spec = wing_spec(args.model, parse_effects(args.effects))
-    if args.lockstep:
-        scenarios = (args.scenario,) if args.scenario else ("random", "gust7", "gust12")
-        kp0, ki0 = Rig().paper_gains
-        kp, ki = (kp0 if args.kp is None else args.kp), (ki0 if args.ki is None else args.ki)
-        gains = "the paper's Kp = 7, Ki = 1 in deg of servo horn" if args.kp is None and args.ki is None else "given"
-        print(f"lock-step, {args.duration:g} s per run; PI gains Kp = {kp:.3g} mm/deg, Ki = {ki:.3g} mm/(deg s) "
-              f"({gains}); simulated wing effects: {spec.plant.effects.to_dict() or 'none'}")
-        rows = compare(scenarios, duration_s=args.duration, spec=spec, kp=args.kp, ki=args.ki, seed=args.seed,
-                       controller_params=bridge_params(args.bridge_model))
-        print(comparison_table(rows))
-        return 0
+    spec = wing_spec(args.model, parse_effects(args.effects), args.plant)
     out = args.out or Path(f"sitl-run-{time.strftime('%Y%m%d-%H%M%S')}")
+    if args.lockstep:
+        if args.bridge_model == "identify" or (args.bridge_model is None and args.plant == "sheath"):
+            out.mkdir(parents=True, exist_ok=True)
+        args.bridge_model = resolve_bridge_model(args, out)
+        scenarios = (args.scenario,) if args.scenario else ("random", "gust7", "gust12")
+        kp, ki = chosen_gains(args)
+        gains = f"set {args.gains}" if args.kp is None and args.ki is None else "given"
+        print(f"lock-step, {args.duration:g} s per run; PI gains kp = {kp:.3g} mm/deg, ki = {ki:.3g} mm/(deg s) "
+              f"({gains}); simulated wing: {args.plant}, effects: {_effects_dict(spec) or 'none'}; bridge model: "
+              f"{args.bridge_model}")
+        rows = compare(scenarios, duration_s=args.duration, spec=spec, kp=kp, ki=ki, seeds=(args.seed,),
+                       model_file=args.bridge_model)
+        exact = args.plant == "bouc-wen" and args.bridge_model == "paper" and not args.model \
+            and not _effects_dict(spec)
+        print(comparison_table(rows, note=(
+            "The controller knows this wing exactly (the paper's plant and model): an upper bound, not a like-for-"
+            "like comparison; --plant sheath flies a wing identified on the bench and re-rigged.") if exact else None))
+        return 0
     out.mkdir(parents=True, exist_ok=True)
+    args.bridge_model = resolve_bridge_model(args, out)
     # Ctrl-C and SIGTERM both unwind through run_realtime's clean-up (even where SIGINT was ignored)
     old = {s: signal.signal(s, _raise_interrupt) for s in (signal.SIGTERM, signal.SIGINT)}
     try:

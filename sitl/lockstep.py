@@ -263,10 +263,14 @@ class WingBoard:
 
     Every servo target and every sensor read first advances the wings to ``clock()``; each read is
     recorded with the wing's true warp and tendon travel at that instant (``reads``, ``last_read``).
-    Pulses are clamped to the channel's calibrated range and set in 0.25 us steps, as a Maestro does."""
+    Pulses are clamped to the channel's calibrated range and set in 0.25 us steps, as a Maestro does.
+    ``inject(wing, t)``: tendon travel (mm) added to every servo target (a test signal for measuring
+    the loop's frequency response; None: nothing added)."""
 
-    def __init__(self, rig: Rig, wings: dict[str, SimWing], clock: Callable[[], float]) -> None:
+    def __init__(self, rig: Rig, wings: dict[str, SimWing], clock: Callable[[], float],
+                 inject: Callable[[str, float], float] | None = None) -> None:
         self.rig, self.wings, self.clock = rig, wings, clock
+        self.inject = inject
         self.servo_of = dict(zip(rig.servo_channels, WINGS, strict=True))
         self.sensor_of = dict(zip(rig.sensor_channels, WINGS, strict=True))
         s = rig.servo
@@ -282,6 +286,8 @@ class WingBoard:
         if wing is None:
             return
         t = self.clock() + self.delays.get(wing, (0.0, 0.0))[1]
+        if self.inject is not None:
+            pulse_us += self.inject(wing, t) / self.rig.servo.mm_per_us
         self.wings[wing].advance(t)
         self.wings[wing].set_pulse(pulse_us)
         self.targets += 1
@@ -337,6 +343,7 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
                  kp: float | None = None, ki: float | None = None, seed: int = 0,
                  record_wings: bool = False, schedule: Schedule | None = None,
                  t_end: float | None = None, flow_shift_s: float = 0.0,
+                 inject: Callable[[str, float], float] | None = None,
                  ) -> tuple[RunResult, dict[str, SimWing]]:
     """Fly ``scenario`` in lock-step with the bridge's own cycle in ``mode``, up to ``t_end``
     (default: the scenario's end).
@@ -344,7 +351,8 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
     ``spec`` is the simulated wing (default: the paper's plant with the SITL's small aero
     load); ``controller_params`` the model the bridge uses (default: the config's, the paper's),
     so a wing that differs from the bridge's model is ``spec.with_effects(...)``; ``schedule``
-    where the ticks and messages fall (default: ``Schedule()``)."""
+    where the ticks and messages fall (default: ``Schedule()``); ``inject(wing, t)`` tendon mm added to
+    each servo target (``WingBoard``)."""
     spec = spec or WingSpec()
     sched = schedule or Schedule()
     cfg = config or rig_config(scenario.rig, mode, kp, ki)
@@ -360,7 +368,7 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
     rig = scenario.rig
     wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=seed, record=record_wings,
                        flow_shift_s=flow_shift_s)
-    board = WingBoard(rig, wings, clock)
+    board = WingBoard(rig, wings, clock, inject)
     bridge = Bridge(cfg, servo=board, sensor=board, link=link, clock=clock)
     try:
         for w in bridge.wings.values():
@@ -431,34 +439,80 @@ def _f(v: float | None) -> float:
 
 @dataclass(frozen=True)
 class CompareRow:
-    """One line of the comparison table."""
+    """One line of the comparison table: a mode on a scenario over a stretch, one RMS per seed."""
 
     scenario: str
     mode: str
-    rms_left: float
-    rms_right: float
-    paper: float | None
+    rms: tuple[float, ...]  # per seed: RMS of setpoint - true warp over the window, mean of both wings (deg)
+    paper: float | None = None  # the paper's bench figure for this mode, where it has one
+    window: tuple[float, float] = (SETTLE_S, math.inf)  # scenario seconds the RMS covers
+    label: str = ""  # what else distinguishes the row (e.g. the gain set)
 
     @property
     def rms_mean(self) -> float:
-        return 0.5 * (self.rms_left + self.rms_right)
+        return float(np.mean(self.rms))
+
+    @property
+    def rms_min(self) -> float:
+        return float(np.min(self.rms))
+
+    @property
+    def rms_max(self) -> float:
+        return float(np.max(self.rms))
+
+
+def _one_run(job: tuple) -> tuple:
+    """Worker of ``compare``: one lock-step run, the RMS (mean of both wings) per window."""
+    name, mode, seed, duration_s, windows, spec, rig, kp, ki, model_file, controller_params = job
+    sc = make_scenario(name, duration_s, rig=rig, seed=seed)
+    cfg = rig_config(sc.rig, mode, kp, ki, model_file=model_file)
+    res, _ = run_lockstep(sc, mode=mode, spec=spec, config=cfg, controller_params=controller_params, seed=seed)
+    out = []
+    for lo, hi in windows:
+        r = res.compute_rms(t_from=lo, t_to=hi)
+        out.append(0.5 * (r["left"] + r["right"]))
+    return name, mode, seed, tuple(out)
 
 
 def compare(scenarios=("random", "gust7", "gust12"), modes=MODES, *, duration_s: float = 30.0,
-            spec: WingSpec | None = None, controller_params: BoucWenParams | None = None,
-            kp: float | None = None, ki: float | None = None, seed: int = 0, rig: Rig | None = None,
-            progress=None) -> list[CompareRow]:
-    """RMS tracking error of every mode on every scenario (lock-step), beside the paper's bench figures."""
+            windows: tuple[tuple[float, float], ...] | None = None, spec: WingSpec | None = None,
+            controller_params: BoucWenParams | None = None, model_file: str = "paper",
+            kp: float | None = None, ki: float | None = None, seeds=(0,), rig: Rig | None = None,
+            label: str = "", workers: int = 1, progress=None) -> list[CompareRow]:
+    """RMS tracking error of every mode on every scenario (lock-step) over ``seeds`` (the reference, the
+    gusts and the sensor noise), beside the paper's bench figures; one row per window, scenario and mode.
+
+    ``windows``: stretches of scenario time (s) to score, each from the same runs (default: from the
+    ramp-in's end to the end). ``model_file``: the bridge's model ("paper" or a MODEL.json path);
+    ``controller_params`` overrides it in the controllers. ``workers`` > 1 runs in that many processes;
+    ``progress(done, total)`` after each run."""
+    windows = windows or ((SETTLE_S, math.inf),)
+    jobs = [(name, mode, seed, duration_s, windows, spec, rig, kp, ki, model_file, controller_params)
+            for name in scenarios for mode in modes for seed in seeds]
+    results: dict[tuple[str, str, int], tuple[float, ...]] = {}
+
+    def done(r: tuple) -> None:
+        name, mode, seed, rms = r
+        results[(name, mode, seed)] = rms
+        log.info("%s %s seed %d: RMS %s deg", name, mode, seed, ", ".join(f"{x:.3f}" for x in rms))
+        if progress is not None:
+            progress(len(results), len(jobs))
+
+    if workers > 1 and len(jobs) > 1:
+        import concurrent.futures as cf
+        import multiprocessing as mp
+
+        with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+            for fut in cf.as_completed([ex.submit(_one_run, j) for j in jobs]):
+                done(fut.result())
+    else:
+        for j in jobs:
+            done(_one_run(j))
     rows = []
-    for name in scenarios:
-        sc = make_scenario(name, duration_s, rig=rig, seed=seed)
-        for mode in modes:
-            cfg = rig_config(sc.rig, mode, kp, ki)
-            res, _ = run_lockstep(sc, mode=mode, spec=spec, config=cfg, controller_params=controller_params,
-                                  seed=seed)
-            paper = PAPER_BENCH_RMS.get(mode) if name == "random" else None
-            rows.append(CompareRow(name, mode, res.rms["left"], res.rms["right"], paper))
-            log.info("%s %s: RMS left %.3f right %.3f deg", name, mode, res.rms["left"], res.rms["right"])
-            if progress is not None:
-                progress(rows[-1])
+    for k, win in enumerate(windows):
+        for name in scenarios:
+            for mode in modes:
+                rms = tuple(results[(name, mode, seed)][k] for seed in seeds)
+                paper = PAPER_BENCH_RMS.get(mode) if name == "random" else None
+                rows.append(CompareRow(name, mode, rms, paper, win, label))
     return rows

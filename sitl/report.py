@@ -23,20 +23,32 @@ def _num(v: float | None, width: int = 7) -> str:
     return f"{'-':>{width}}" if v is None or not np.isfinite(v) else f"{v:{width}.3f}"
 
 
-def comparison_table(rows: Iterable[CompareRow]) -> str:
-    """RMS tracking error (deg) per scenario and mode, with the paper's bench figure where it has one."""
-    head = f"{'scenario':<9} {'mode':<18} {'left':>7} {'right':>7} {'mean':>7} {'paper':>7}"
+def comparison_table(rows: Iterable[CompareRow], note: str | None = None) -> str:
+    """RMS tracking error (deg) per scenario and mode (mean over seeds, and the range over seeds when
+    there are several), with the paper's bench figure where it has one."""
+    rows = list(rows)
+    many = any(len(r.rms) > 1 for r in rows)
+    head = (f"{'scenario':<9} {'window s':<9} {'mode':<26} {'RMS':>7} "
+            + (f"{'seeds min-max':>15} " if many else "") + f"{'paper':>7}")
     lines = [head, "-" * len(head)]
     last = None
     for r in rows:
-        if last is not None and r.scenario != last:
+        key = (r.scenario, r.window)
+        if last is not None and key != last:
             lines.append("")
-        last = r.scenario
-        lines.append(f"{r.scenario:<9} {MODE_LABEL.get(r.mode, r.mode):<18} {_num(r.rms_left)} "
-                     f"{_num(r.rms_right)} {_num(r.rms_mean)} {_num(r.paper)}")
+        last = key
+        lo, hi = r.window
+        win = f"{lo:g}-{'end' if not np.isfinite(hi) else f'{hi:g}'}"
+        mode = MODE_LABEL.get(r.mode, r.mode) + (f" ({r.label})" if r.label else "")
+        spread = f"{f'{r.rms_min:.3f}-{r.rms_max:.3f}':>15} " if many else ""
+        lines.append(f"{r.scenario:<9} {win:<9} {mode:<26} {_num(r.rms_mean)} {spread}{_num(r.paper)}")
     lines.append("")
-    lines.append("RMS of setpoint - true warp, deg. Paper (Lee et al. 2017, bench, 1 Hz 4 deg random, Kp = 7, "
-                 "Ki = 1): " + ", ".join(f"{MODE_LABEL[m]} {v:g}" for m, v in PAPER_BENCH_RMS.items()) + ".")
+    seeds = max((len(r.rms) for r in rows), default=0)
+    lines.append(f"RMS of setpoint - true warp, deg, mean of both wings{f' and {seeds} seeds' if seeds > 1 else ''}. "
+                 "Paper (Lee et al. 2017, bench, 1 Hz 4 deg random, Kp = 7, Ki = 1): "
+                 + ", ".join(f"{MODE_LABEL[m]} {v:g}" for m, v in PAPER_BENCH_RMS.items()) + ".")
+    if note:
+        lines.append(note)
     return "\n".join(lines)
 
 

@@ -32,7 +32,7 @@ def test_example_config_is_valid_and_paths_are_relative_to_it(tmp_path):
     assert cfg.params_file == tmp_path / "warpbridge-params.json"
     assert cfg.loop.log == tmp_path / "logs" / "warpbridge-{time}.csv"
     assert cfg.model_file is None
-    assert cfg.left.control.mode == "ff+pi" and cfg.left.control.kp == 7.0
+    assert cfg.left.control.mode == "ff+pi" and (cfg.left.control.kp, cfg.left.control.ki) == (0.5, 10.0)
     assert cfg.left.sensor.counts[0] == 100 and len(cfg.left.sensor.deg) == 4
 
 
@@ -56,6 +56,7 @@ servo_channel = 1
     assert cfg.model_file == tmp_path / "models" / "m.json"
     assert cfg.left.sensor_channel is None
     assert cfg.left.servo.mm_limits == (-10.0, 10.0)
+    assert (cfg.right.control.kp, cfg.right.control.ki) == (0.5, 10.0)  # mm/deg, mm/(deg s)
 
 
 @pytest.mark.parametrize("old,new,key", [
@@ -69,7 +70,7 @@ servo_channel = 1
     ('bias_deg = 2.0', 'bias_deg = 9.0', "bias_deg"),
     ('reverse = false', 'reverse = "no"', "reverse"),
     ('mode = "ff+pi"', 'mode = "pid"', "mode"),
-    ('kp = 7.0', 'kp = -1', "kp"),
+    ('kp = 0.5', 'kp = -1', "kp"),
     ('mm_per_us = 0.02', 'mm_per_us = 0', "mm_per_us"),
     ('pulse_zero_us = 1200', 'pulse_zero_us = 2200', "pulse_zero_us"),
     ('counts = [100, 400, 700, 1000]', 'counts = [100, 400, 300, 1000]', "counts"),
