@@ -24,9 +24,7 @@ from typing import Any
 import pytest
 from helpers import free_udp_port
 
-from warpbridge.bridge.controller import straight_line
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
-from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.sitl.maestro_emu import MaestroEmulator
 from warpbridge.sitl.mock_autopilot import MockAutopilot
 
@@ -277,9 +275,10 @@ def make_rig(tmp_path):
 
 
 def open_loop_pulse(setpoint: float) -> float:
-    """What ``open`` mode must write for a setpoint (no play): the model's line, then the calibration."""
-    slope, offset = straight_line(BoucWenParams.paper(), 8.0)
-    pulse = PULSE_ZERO + (slope * setpoint + offset) / MM_PER_US
+    """What ``open`` mode must write for a setpoint (no play): the model's line, then the calibration. The
+    line through the paper model's settled loop over 0..8 deg, u = 0.58019 w + 0.92153 mm, comes from an
+    independent plain integration of the model (``test_controller.plain_inverse``), not ``straight_line``."""
+    pulse = PULSE_ZERO + (0.58019 * setpoint + 0.92153) / MM_PER_US
     return round(min(2000.0, max(1000.0, pulse)) * 4) / 4
 
 

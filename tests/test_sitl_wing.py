@@ -33,7 +33,7 @@ def test_servo_ignores_changes_within_its_deadband_and_quantises():
     assert s.position_us == 1500.0
     s.step(2.0, 1510.1)  # quantised to 1510.0, stops at the deadband's edge
     assert s.position_us == pytest.approx(1509.0, abs=1e-6)
-    assert s.mm == pytest.approx((1509.0 - s.spec.pulse_zero_us) * s.spec.mm_per_us)
+    assert s.mm == pytest.approx(6.4246, abs=1e-4)  # 409 us above 1100 us at 0.09 deg/us on a 10 mm horn
 
 
 def test_flex_sensor_counts_read_back_through_the_bridge_calibration():
