@@ -120,3 +120,16 @@ def test_a_neutral_hold_puts_the_scenario_off_without_a_step():
     start = (t > 0.9) & (t < 1.2)
     assert np.max(np.abs(np.diff(a[start]))) < 1e-3  # starts from neutral smoothly (a ramp, not a step)
     np.testing.assert_allclose(sc.aileron(t[t >= 1.0]), plain.aileron(t[t >= 1.0] - 1.0), atol=1e-9)
+
+
+def test_compare_scores_each_window_over_each_seed():
+    from warpbridge.sitl.lockstep import compare
+
+    rows = compare(("random",), ("open", "ff+pi"), duration_s=4.0, windows=((1.0, 4.0), (2.5, 4.0)), seeds=(0, 1))
+    assert [(r.window, r.mode) for r in rows] == [((1.0, 4.0), "open"), ((1.0, 4.0), "ff+pi"),
+                                                 ((2.5, 4.0), "open"), ((2.5, 4.0), "ff+pi")]
+    assert all(len(r.rms) == 2 and r.rms[0] != r.rms[1] for r in rows)  # two seeds: two references
+    assert rows[0].paper == 1.727 and rows[1].paper == 0.285  # the paper's bench figures beside them
+    for o, f in ((rows[0], rows[1]), (rows[2], rows[3])):
+        assert all(b < 0.5 * a for a, b in zip(o.rms, f.rms, strict=True))
+    assert rows[0].rms_min <= rows[0].rms_mean <= rows[0].rms_max
