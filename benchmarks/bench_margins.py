@@ -31,9 +31,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
 
+from warpbridge.sitl.like_for_like import bench_params, rigged  # noqa: E402
 from warpbridge.sitl.margins import linear_margins, measure_loop, plant_slope  # noqa: E402
 from warpbridge.sitl.scenarios import Rig  # noqa: E402
-from warpbridge.sitl.wing import default_plant  # noqa: E402
+from warpbridge.sitl.sheath import SheathPlant  # noqa: E402
+from warpbridge.sitl.wing import SheathWing, default_plant  # noqa: E402
 
 
 def _fmt(m, top_gain: float = math.nan) -> tuple[str, str, str]:
@@ -53,16 +55,9 @@ def main() -> None:
     rig = Rig()
     t0 = time.perf_counter()
     slopes = {"paper wing (Bouc-Wen), 2..10 deg": plant_slope(default_plant(), -0.5, 7.5, w_lo=2.0, w_hi=10.0)}
-    try:
-        from warpbridge.sitl.like_for_like import bench_params, rigged
-        from warpbridge.sitl.sheath import SheathPlant
-        from warpbridge.sitl.wing import SheathWing
-
-        for label, p in (("sheath wing, bench", bench_params()), ("sheath wing, re-rigged", rigged(bench_params()))):
-            lo, hi = SheathPlant(p).travel_range(12.0)
-            slopes[f"{label}, 0..12 deg"] = plant_slope(SheathWing(p), lo - 0.5, hi, w_lo=0.0, w_hi=12.0)
-    except ImportError:
-        print("(sitl.sheath not available: the sheath wing's slope is left out)", file=sys.stderr)
+    for label, p in (("sheath wing, bench", bench_params()), ("sheath wing, re-rigged", rigged(bench_params()))):
+        lo, hi = SheathPlant(p).travel_range(12.0)
+        slopes[f"{label}, 0..12 deg"] = plant_slope(SheathWing(p), lo - 0.5, hi, w_lo=0.0, w_hi=12.0)
     print("steepest small-signal slope dw/du (slow tendon sweeps, no sensor):")
     for k, v in slopes.items():
         print(f"  {k}: {v:.2f} deg/mm")
