@@ -187,10 +187,6 @@ def _effects_dict(spec: WingSpec) -> dict:
     return spec.plant.effects.to_dict() if isinstance(spec.plant, Plant) else {}
 
 
-def bridge_params(spec: str) -> BoucWenParams:
-    return BoucWenParams.paper() if spec == "paper" else _read_model(Path(spec), "--bridge-model").params
-
-
 def resolve_bridge_model(args: argparse.Namespace, out: Path) -> str:
     """'paper' or a MODEL.json path; with 'identify', the bench sheath's log identified into ``out``."""
     choice = args.bridge_model or ("identify" if args.plant == "sheath" else "paper")
@@ -485,8 +481,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     for label, sch in (("lock-step", replay), ("ideal timing", sched)):
         runs[label], _ = run_lockstep(
             scenario, mode=args.mode, spec=spec,
-            config=rig_config(rig, args.mode, kw["kp"], kw["ki"], model_file=model_file), seed=args.seed, schedule=sch, t_end=t_to + 0.05,
-            flow_shift_s=rig_at_log0 - tau)
+            config=rig_config(rig, args.mode, kw["kp"], kw["ki"], model_file=model_file), seed=args.seed,
+            schedule=sch, t_end=t_to + 0.05, flow_shift_s=rig_at_log0 - tau)
         runs[label].compute_rms(t_from=t_from, t_to=t_to)
     ls, ideal = runs["lock-step"], runs["ideal timing"]
     rt.compute_rms(t_from=t_from, t_to=t_to)
@@ -582,7 +578,7 @@ def main(args: argparse.Namespace) -> int:
         rows = compare(scenarios, duration_s=args.duration, spec=spec, kp=kp, ki=ki, seeds=(args.seed,),
                        model_file=args.bridge_model)
         exact = args.plant == "bouc-wen" and args.bridge_model == "paper" and not args.model \
-            and not _effects_dict(spec)
+            and not args.effects.strip()
         print(comparison_table(rows, note=(
             "The controller knows this wing exactly (the paper's plant and model): an upper bound, not a like-for-"
             "like comparison; --plant sheath flies a wing identified on the bench and re-rigged.") if exact else None))
