@@ -51,6 +51,9 @@ pulse_max_us = 1900
 [wing.left.sensor]
 counts = [100, 900]
 deg = [0, 20]
+[wing.left.control]
+kp = 7.0  # the gains these fault tests were written for: a slow integrator that the sensor-fault test
+ki = 1.0  # watches move, rather than one that sits at its limit
 [wing.right]
 source_channel = 1
 reverse = true

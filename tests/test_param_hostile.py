@@ -201,7 +201,7 @@ def test_a_flood_of_bad_sets_does_not_flood_the_radio(rig):
     assert 1 <= len(texts) <= 7  # burst of 5, then 1/s
     assert rig.bridge.params.refused == 300
     assert len(rig.take("PARAM_VALUE")) <= 60  # echoes paced (and deduplicated)
-    assert rig.bridge.store.get("WB_KP") == 7.0
+    assert rig.bridge.store.get("WB_KP") == 0.5  # the default, unchanged
 
 
 # ---------------------------------------------------------------------------- property, server level
@@ -392,7 +392,7 @@ def test_bridge_reports_a_corrupt_file_at_start_up(tmp_path):
     try:
         texts = [m.text for m in r.take("STATUSTEXT")]
         assert any("corrupt" in t and "defaults" in t for t in texts), texts
-        assert r.bridge.store.get("WB_KP") == 7.0 and r.live()["kp"] == 7.0
+        assert r.bridge.store.get("WB_KP") == 0.5 and r.live()["kp"] == 0.5  # the defaults
         assert len(list(tmp_path.glob("params.json.corrupt-*"))) == 1
     finally:
         r.close()

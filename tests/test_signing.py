@@ -181,7 +181,7 @@ def test_signed_set_accepted_unsigned_and_wrongly_signed_refused_and_counted(rig
     rig.send(Peer(GCS, None).pack(mavlink.MAVLink_command_long_message(1, 191, 246, 0, 1, 0, 0, 0, 0, 0, 0)))
     rig.send(Peer(GCS, WRONG).pack(mavlink.MAVLink_command_long_message(1, 191, 246, 0, 1, 0, 0, 0, 0, 0, 0)))
     rig.tick(10, pwm=1700)
-    assert store.get("WB_KP") == 7.0 and all(w.ctl.kp == 7.0 for w in rig.bridge.wings.values())
+    assert store.get("WB_KP") == 0.5 and all(w.ctl.kp == 0.5 for w in rig.bridge.wings.values())  # the default
     assert link.counters.unsigned_refused == 2 and link.counters.bad_signature == 2
     assert link.counters.refused == {"PARAM_SET": 2, "COMMAND_LONG": 2}
     assert not rig.param_values("WB_KP")  # refused frames never reach the parameter server
@@ -231,8 +231,8 @@ def test_allow_list_applies_to_signed_sets_too(tmp_path):
         r.send(Peer(GCS, KEY).pack(param_set(b"WB_KP", 9.0)))  # right key, sysid not allowed
         r.send(Peer(OTHER_GCS, KEY, link_id=2).pack(param_set(b"WB_KI", 2.5)))
         r.tick(10, pwm=1500)
-        assert r.bridge.store.get("WB_KP") == 7.0 and r.bridge.store.get("WB_KI") == 2.5
-        assert r.param_values("WB_KP")[-1] == pytest.approx(7.0)  # refused: echoed unchanged
+        assert r.bridge.store.get("WB_KP") == 0.5 and r.bridge.store.get("WB_KI") == 2.5
+        assert r.param_values("WB_KP")[-1] == pytest.approx(0.5)  # refused: echoed unchanged (the default)
     finally:
         r.close()
 
