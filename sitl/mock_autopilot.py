@@ -18,7 +18,11 @@ fills it), VFR_HUD (74). Output pulses come from a roll source, any callable
 aileron outputs 1 and 2), quantised to 1 us with +-1 us jitter. It accepts
 MAV_CMD_DO_SET_SERVO (ArduPilot) and MAV_CMD_DO_SET_ACTUATOR (PX4): acked,
 recorded, and a DO_SET_SERVO output then shows the commanded pulse. It has a few
-parameters of its own so a ground station finishes its parameter download.
+parameters of its own so a ground station finishes its parameter download, and
+publishes what each output does as the autopilot would (``OutputFunctionParams``:
+ArduPilot's ``SERVOn_FUNCTION``, PX4's ``PWM_MAIN_FUNCn`` and ``CA_SV_CSi_TYPE``,
+integers byte-wise in the float as PX4 sends them); ``output_functions`` (CLI
+``--output-function CH=ROLE``) changes them, e.g. to put the aileron elsewhere.
 
 Routing follows ArduPilot's MAVLink_routing: routes (system, component) ->
 link are learned from what arrives; a message with no target, or a broadcast
@@ -49,6 +53,7 @@ import logging  # noqa: E402
 import math  # noqa: E402
 import select  # noqa: E402
 import signal  # noqa: E402
+import struct  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
@@ -181,6 +186,79 @@ def load_scenario(name: str) -> RollSource:
     raise ValueError(f"unknown scenario {name!r}: use {', '.join(SCENARIOS)} or module:attr")
 
 
+# ---------------------------------------------------------------------- output functions (parameter protocol)
+
+# role -> ArduPilot SERVOn_FUNCTION (SRV_Channel::Aux_servo_function_t)
+ARDUPILOT_FUNCTIONS = {"disabled": 0, "aileron": 4, "elevator": 19, "rudder": 21, "throttle": 70,
+                       "left_flaperon": 24, "right_flaperon": 25, "left_elevon": 77, "right_elevon": 78}
+# role -> PX4 control surface type (CA_SV_CSi_TYPE); "throttle" is a motor (PWM_MAIN_FUNCn 101..)
+PX4_SURFACE_TYPES = {"left_aileron": 1, "aileron": 1, "right_aileron": 2, "elevator": 3, "rudder": 4,
+                     "left_elevon": 5, "right_elevon": 6, "left_flaperon": 9, "right_flaperon": 10}
+DEFAULT_OUTPUT_FUNCTIONS = {1: "aileron", 2: "aileron", 3: "throttle", 4: "rudder"}  # as SineRoll drives them
+N_FUNCTION_PARAMS = 16
+
+
+class OutputFunctionParams:
+    """What each output does, published through the parameter protocol as the real autopilots do.
+
+    ``roles``: output (1-based) -> role (keys of ``ARDUPILOT_FUNCTIONS`` / ``PX4_SURFACE_TYPES``, or
+    ``"throttle"``); other outputs are disabled. ArduPilot: ``SERVOn_FUNCTION`` (INT16, value cast into
+    the float). PX4: ``PWM_MAIN_FUNCn`` = 201 + servo index for control surfaces, 101.. for motors,
+    ``CA_SV_CS_COUNT`` and ``CA_SV_CSi_TYPE`` (INT32, bytes of the integer in the float: PX4's
+    byte-wise parameter encoding)."""
+
+    def __init__(self, autopilot: str, roles: Mapping[int, str] | None = None) -> None:
+        self.autopilot = autopilot
+        self.roles = dict(DEFAULT_OUTPUT_FUNCTIONS if roles is None else roles)
+        self.values: dict[str, int] = {}
+        if autopilot == "ardupilot":
+            for ch in range(1, N_FUNCTION_PARAMS + 1):
+                role = self.roles.get(ch, "disabled")
+                if role not in ARDUPILOT_FUNCTIONS:
+                    raise ValueError(f"unknown output role {role!r}")
+                self.values[f"SERVO{ch}_FUNCTION"] = ARDUPILOT_FUNCTIONS[role]
+        else:
+            surfaces, motors = 0, 0
+            for ch in range(1, N_FUNCTION_PARAMS + 1):
+                role = self.roles.get(ch, "disabled")
+                if role == "throttle":
+                    motors += 1
+                    self.values[f"PWM_MAIN_FUNC{ch}"] = 100 + motors
+                elif role in PX4_SURFACE_TYPES:
+                    self.values[f"CA_SV_CS{surfaces}_TYPE"] = PX4_SURFACE_TYPES[role]
+                    surfaces += 1
+                    self.values[f"PWM_MAIN_FUNC{ch}"] = 200 + surfaces
+                elif role == "disabled":
+                    self.values[f"PWM_MAIN_FUNC{ch}"] = 0
+                else:
+                    raise ValueError(f"unknown output role {role!r}")
+            self.values["CA_SV_CS_COUNT"] = surfaces
+
+    def encode(self, name: str) -> tuple[float, int]:
+        """(param_value, param_type) of PARAM_VALUE for ``name``, as the autopilot encodes it."""
+        v = self.values[name]
+        if self.autopilot == "ardupilot":
+            return float(v), mavlink.MAV_PARAM_TYPE_INT16
+        return struct.unpack("<f", struct.pack("<i", v))[0], mavlink.MAV_PARAM_TYPE_INT32
+
+    def decode(self, name: str, value: float) -> int:
+        """A PARAM_SET's value for ``name`` back to the integer."""
+        if self.autopilot == "ardupilot":
+            return int(round(value))
+        return struct.unpack("<i", struct.pack("<f", value))[0]
+
+
+def parse_output_functions(items: list[str]) -> dict[int, str]:
+    """``["1=elevator", "5=aileron"]`` -> ``{1: "elevator", 5: "aileron"}`` over the default roles."""
+    roles = dict(DEFAULT_OUTPUT_FUNCTIONS)
+    for item in items:
+        ch, sep, role = item.partition("=")
+        if not sep or not ch.strip().isdigit():
+            raise ValueError(f"--output-function {item!r}: expected CH=ROLE, e.g. 5=aileron")
+        roles[int(ch)] = role.strip()
+    return roles
+
+
 # ---------------------------------------------------------------------- the mock
 
 
@@ -216,6 +294,7 @@ class MockAutopilot:
         seed: int = 0,
         jitter_us: int = 1,
         heartbeat_hz: float = 1.0,
+        output_functions: Mapping[int, str] | None = None,
     ) -> None:
         if autopilot not in AUTOPILOT_IDS:
             raise ValueError(f"autopilot must be one of {', '.join(AUTOPILOT_IDS)}")
@@ -239,10 +318,12 @@ class MockAutopilot:
         self.forwarded: dict[str, int] = {}  # message type -> count forwarded
         self.sent: dict[str, int] = {}  # message type -> count of own messages sent
         self.params: dict[str, float] = (
-            {"SYSID_THISMAV": 1.0, "SERVO1_FUNCTION": 4.0, "SERVO2_FUNCTION": 4.0, "ARSPD_TYPE": 1.0}
+            {"SYSID_THISMAV": 1.0, "ARSPD_TYPE": 1.0}
             if autopilot == "ardupilot"
-            else {"MAV_SYS_ID": 1.0, "FW_AIRSPD_TRIM": 15.0, "PWM_MAIN_FUNC1": 201.0}
+            else {"MAV_SYS_ID": 1.0, "FW_AIRSPD_TRIM": 15.0}
         )
+        self.output_functions = OutputFunctionParams(autopilot, output_functions)
+        self.params.update({name: float(v) for name, v in self.output_functions.values.items()})
         self._next_due: dict[int, float] = {}
         self._pause_until = 0.0
         self._pause_heartbeat = True
@@ -467,14 +548,19 @@ class MockAutopilot:
                 self._param_value(conn, names[msg.param_index], msg.param_index)
         elif mtype == "PARAM_SET":
             pid = str(msg.param_id).split("\x00")[0]
-            if pid in self.params and math.isfinite(msg.param_value):
+            if pid in self.output_functions.values:
+                value = self.output_functions.decode(pid, msg.param_value)
+                self.output_functions.values[pid] = value
+                self.params[pid] = float(value)
+                self._param_value(conn, pid, list(self.params).index(pid))
+            elif pid in self.params and math.isfinite(msg.param_value):
                 self.params[pid] = float(msg.param_value)
                 self._param_value(conn, pid, list(self.params).index(pid))
 
     def _param_value(self, conn: Any, name: str, index: int) -> None:
-        conn.mav.param_value_send(
-            name.encode(), self.params[name], mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), index
-        )
+        value, ptype = (self.output_functions.encode(name) if name in self.output_functions.values
+                        else (self.params[name], mavlink.MAV_PARAM_TYPE_REAL32))
+        conn.mav.param_value_send(name.encode(), value, ptype, len(self.params), index)
 
     def _command(self, msg: Any) -> int:
         cmd = msg.command
@@ -533,6 +619,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--freq", type=float, default=0.5, help="sine/steps frequency, Hz")
     p.add_argument("--airspeed", type=float, default=12.0, help="VFR_HUD airspeed, m/s")
     p.add_argument("--armed", action="store_true")
+    p.add_argument("--output-function", action="append", default=[], metavar="CH=ROLE",
+                   help="what output CH does (aileron, elevator, rudder, throttle, disabled, left_elevon, ...); "
+                        "default 1,2 aileron, 3 throttle, 4 rudder")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--stall-at", type=float, help="stop streaming at this time (s)")
@@ -567,6 +656,7 @@ def main(argv: list[str] | None = None) -> int:
         airspeed_source=airspeed_source,
         armed=args.armed,
         seed=args.seed,
+        output_functions=parse_output_functions(args.output_function),
     )
     signal.signal(signal.SIGTERM, lambda *_: mock._stop.set())
     if args.stall_at is not None:
