@@ -100,6 +100,7 @@ class Verdict:
     channel: int
     kind: str  # "aileron" | "mixed" | "not_aileron" | "unknown"
     what: str  # e.g. "SERVO3_FUNCTION 19 (elevator)"
+    name: str = ""  # what the output does, short: "elevator", "motor 1", "left elevon"; "" if unknown
 
     @property
     def ok(self) -> bool:
@@ -116,12 +117,12 @@ class Verdict:
         }[self.kind]
 
     def status(self) -> str:
-        """Short STATUSTEXT form."""
+        """Short STATUSTEXT form (one 50-character message where it can be)."""
         tag = self.wing[0].upper()
         return {
             "aileron": f"WB {tag} out {self.channel}: aileron",
-            "mixed": f"WB {tag} out {self.channel}: roll mixed ({self.what})",
-            "not_aileron": f"WB {tag} out {self.channel} not aileron: {self.what}",
+            "mixed": f"WB {tag} out {self.channel} is {self.name}: roll mixed",
+            "not_aileron": f"WB {tag} out {self.channel} is {self.name}, not aileron",
             "unknown": f"WB {tag} out {self.channel}: function unknown ({self.what})",
         }[self.kind][:100]
 
@@ -167,32 +168,35 @@ class OutputFunctionCheck:
             return Verdict(wing, channel, "unknown", f"no answer to {fn_name}")
         f = int(fn)
         if autopilot == "ardupilot":
-            what = f"{fn_name} {f} ({ARDUPILOT_NAMES.get(f, f'function {f}')})"
+            name = ARDUPILOT_NAMES.get(f, f"function {f}")
+            what = f"{fn_name} {f} ({name})"
             if f in ARDUPILOT_AILERON:
-                return Verdict(wing, channel, "aileron", what)
+                return Verdict(wing, channel, "aileron", what, name)
             if f in ARDUPILOT_MIXED:
-                return Verdict(wing, channel, "mixed", what)
+                return Verdict(wing, channel, "mixed", what, name)
             if f in ARDUPILOT_SCRIPT:
                 return Verdict(wing, channel, "unknown", f"{fn_name} {f}: a script output")
-            return Verdict(wing, channel, "not_aileron", what)
+            return Verdict(wing, channel, "not_aileron", what, name)
         if f in PX4_SERVO:
             k = f - 201
             count, kind = self._value_or_gone("CA_SV_CS_COUNT"), self._value_or_gone(f"CA_SV_CS{k}_TYPE")
             if count is _WAITING or kind is _WAITING:
                 return None
             if count is not None and k >= int(count):
-                return Verdict(wing, channel, "not_aileron", f"{fn_name} {f}: servo {k + 1} is a tilt servo")
+                return Verdict(wing, channel, "not_aileron", f"{fn_name} {f}: servo {k + 1} is a tilt servo",
+                               "tilt servo")
             if kind is None:
                 return Verdict(wing, channel, "unknown", f"{fn_name} {f}, no answer to CA_SV_CS{k}_TYPE")
             t = int(kind)
-            what = f"{fn_name} {f}, CA_SV_CS{k}_TYPE {t} ({PX4_SURFACES.get(t, f'type {t}')})"
+            name = PX4_SURFACES.get(t, f"surface type {t}")
+            what = f"{fn_name} {f}, CA_SV_CS{k}_TYPE {t} ({name})"
             if t in PX4_AILERON:
-                return Verdict(wing, channel, "aileron", what)
-            return Verdict(wing, channel, "mixed" if t in PX4_MIXED else "not_aileron", what)
+                return Verdict(wing, channel, "aileron", what, name)
+            return Verdict(wing, channel, "mixed" if t in PX4_MIXED else "not_aileron", what, name)
         if f in PX4_OFFBOARD:
             return Verdict(wing, channel, "unknown", f"{fn_name} {f}: offboard actuator set {f - 300}")
         name = f"motor {f - 100}" if f in PX4_MOTOR else PX4_FUNCTIONS.get(f, f"function {f}")
-        return Verdict(wing, channel, "not_aileron", f"{fn_name} {f} ({name})")
+        return Verdict(wing, channel, "not_aileron", f"{fn_name} {f} ({name})", name)
 
     def _value_or_gone(self, name: str) -> Any:
         if name in self.values:

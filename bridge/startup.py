@@ -4,8 +4,10 @@ A bridge process that starts while the tendon servos are powered (a restart by
 systemd after a crash, the companion computer rebooting in flight) finds them
 wherever the last process left them, possibly at full pull. ``command_neutral``
 therefore opens the servo board and puts each wing at its neutral tendon
-position before the MAVLink library and the rest of the bridge are imported
-(only the config, the model file and the serial port are needed).
+position before numpy, the MAVLink library and the rest of the bridge are
+imported: it needs the config, three numbers of the model file (read with the
+standard library; the full, validated read follows when the bridge starts) and
+the serial port.
 
 Neutral for a one-sided tendon is not the servo's middle pulse: 1500 us may be
 several millimetres of pull on one wing and slack on the other. It is the
@@ -15,7 +17,8 @@ tendon travel at which the wing holds its neutral warp (``bias_deg``, capped at
 real wing sits within half a loop width of it), clamped to the wing's tendon
 limits, turned into a pulse by the wing's own servo calibration (its zero and
 its sign). That is also what the first control cycle commands in ``ff`` with
-no aileron input yet, so the hand-over is smooth. Persisted ``WB_BIAS`` /
+no aileron input yet, so the hand-over is smooth. The model file's pre-tension
+effect is folded in (u = offset + u_model / gain); persisted ``WB_BIAS`` /
 ``WB_MAXWARP`` values and per-wing calibrations apply from the first cycle on.
 With ``[servo] backend = "fc:..."`` there is nothing to do before the link is up.
 """
@@ -24,21 +27,31 @@ from __future__ import annotations
 
 import json
 import logging
-from typing import Any
+import math
+from typing import TYPE_CHECKING, Any
 
 from warpbridge.bridge.config import Config, WingConfig
 from warpbridge.bridge.errors import UserError
 from warpbridge.hw import DeviceError, open_servo
 from warpbridge.hw.calibration import ServoCalibration
-from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.compensation import INVERTIBLE, folded_params
-from warpbridge.model.modelfile import ModelFile
+
+if TYPE_CHECKING:
+    from warpbridge.model.boucwen import BoucWenParams
+    from warpbridge.model.modelfile import ModelFile
 
 log = logging.getLogger(__name__)
+
+# a1 (mm/deg^2), a2 (mm/deg), a3 (mm) of BoucWenParams.paper(), for the start before numpy loads
+# (tests/test_startup.py holds them equal)
+PAPER_CENTRE = (-0.0205, 0.7120, 0.7958)
 
 
 def load_model_file(config: Config) -> ModelFile:
     """The whole ``[model] file``: parameters and effects (the paper's parameters for ``"paper"``)."""
+    from warpbridge.model.boucwen import BoucWenParams
+    from warpbridge.model.compensation import INVERTIBLE
+    from warpbridge.model.modelfile import ModelFile
+
     if config.model_file is None:
         return ModelFile(params=BoucWenParams.paper())
     try:
@@ -59,8 +72,27 @@ def load_model_file(config: Config) -> ModelFile:
 
 def load_model(config: Config) -> BoucWenParams:
     """The Bouc-Wen parameters named by ``[model] file`` with its friction and pre-tension folded in."""
+    from warpbridge.model.compensation import folded_params
+
     mf = load_model_file(config)
     return folded_params(mf.params, mf.effects)
+
+
+def centre_line(config: Config) -> tuple[float, float, float] | None:
+    """(a1, a2, a3) of the model's centre line, pre-tension folded in, read with the standard library only;
+    None if the model file cannot be read that way (the bridge's full read then reports why)."""
+    if config.model_file is None:
+        return PAPER_CENTRE
+    try:
+        doc = json.loads(config.model_file.read_text(encoding="utf-8"))
+        a1, a2, a3 = (float(doc["params"][k]) for k in ("a1", "a2", "a3"))
+        pt = (doc.get("effects") or {}).get("pretension") or {}
+        off, gain = float(pt.get("pretension_offset_mm", 0.0)), float(pt.get("pretension_gain", 1.0))
+    except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError):
+        return None
+    if not all(math.isfinite(x) for x in (a1, a2, a3, off, gain)) or not gain > 0:
+        return None
+    return a1 / gain, a2 / gain, a3 / gain + off
 
 
 def servo_calibration(wing: WingConfig) -> ServoCalibration:
@@ -84,17 +116,19 @@ def neutral_warp(wing: WingConfig) -> float:
     return min(max(wing.bias_deg, 0.0), wing.max_warp_deg)
 
 
-def neutral_tendon_mm(model: BoucWenParams, wing: WingConfig) -> float:
-    """Tendon travel (mm) of the wing's neutral warp on the model's centre line (z = 0), within its limits."""
+def neutral_tendon_mm(centre: tuple[float, float, float] | BoucWenParams, wing: WingConfig) -> float:
+    """Tendon travel (mm) of the wing's neutral warp on the model's centre line (z = 0), within its limits;
+    ``centre`` is (a1, a2, a3) or a model."""
+    a1, a2, a3 = (centre.a1, centre.a2, centre.a3) if hasattr(centre, "a1") else centre
     b = neutral_warp(wing)
-    u = model.a1 * b * b + model.a2 * b + model.a3
+    u = a1 * b * b + a2 * b + a3
     lo, hi = tendon_limits(wing)
     return min(hi, max(lo, u))
 
 
-def neutral_pulses(config: Config, model: BoucWenParams) -> dict[int, float]:
+def neutral_pulses(config: Config, centre: tuple[float, float, float] | BoucWenParams) -> dict[int, float]:
     """Servo channel -> neutral pulse (us) for both wings."""
-    return {w.servo_channel: servo_calibration(w).pulse_for_mm(neutral_tendon_mm(model, w))
+    return {w.servo_channel: servo_calibration(w).pulse_for_mm(neutral_tendon_mm(centre, w))
             for w in config.wings.values()}
 
 
@@ -109,7 +143,10 @@ def command_neutral(config: Config, limits: dict[int, tuple[float, float]]) -> A
     spec = config.servo_backend
     if spec.strip().lower().startswith("fc:"):
         return None
-    pulses = neutral_pulses(config, load_model(config))
+    centre = centre_line(config)
+    if centre is None:
+        return None  # the bridge's own read of the model file says what is wrong with it
+    pulses = neutral_pulses(config, centre)
     try:
         servo = open_servo(spec, limits=limits)
     except ValueError as e:

@@ -93,6 +93,9 @@ def test_ardupilot_servo_functions(value, kind, word):
     v = reported[0]
     assert (v.wing, v.channel, v.kind) == ("left", 3, kind) and word in v.what
     assert v.ok == (kind in ("aileron", "mixed"))
+    assert len(v.status()) <= 50 or kind == "unknown"  # one STATUSTEXT, no chunks
+    if kind == "not_aileron":
+        assert v.status() == f"WB L out 3 is {word}, not aileron"
 
 
 def test_px4_servo_functions_follow_the_control_surface_type():

@@ -3,6 +3,7 @@ that agree with the compiled ones, and a numba cache that lands somewhere writab
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -15,8 +16,10 @@ from helpers import free_udp_port
 
 from warpbridge.bridge import jitcache
 from warpbridge.bridge.config import ControlConfig, ServoCal, load_config
-from warpbridge.bridge.startup import neutral_pulses, neutral_tendon_mm
+from warpbridge.bridge.startup import PAPER_CENTRE, centre_line, load_model, neutral_pulses, neutral_tendon_mm
 from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import Effects
+from warpbridge.model.modelfile import ModelFile
 from warpbridge.sitl.maestro_emu import MaestroEmulator
 from warpbridge.sitl.mock_autopilot import MockAutopilot
 
@@ -71,6 +74,21 @@ def test_neutral_is_the_tendon_of_the_neutral_warp_through_each_wings_calibratio
     assert neutral_tendon_mm(PAPER, narrow) == pytest.approx(1.0)  # (1550 - 1500) * 0.02
 
 
+def test_the_quick_read_of_the_model_file_matches_the_full_one(tmp_path):
+    assert PAPER_CENTRE == (PAPER.a1, PAPER.a2, PAPER.a3)
+    model = BoucWenParams(a1=-0.03, a2=0.8, a3=0.5, az=0.7, A=3.0, n=2.5)
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1,
+                                                        friction_scale=1.3)).to_dict()))
+    cfg = replace(load_config(config_file(tmp_path, 1, "loop:")), model_file=path)
+    full = load_model(cfg)  # the validated read, effects folded by model.compensation
+    assert centre_line(cfg) == pytest.approx((full.a1, full.a2, full.a3), rel=1e-12)
+    # hand check of the fold u = offset + u_model / gain: a3 = 0.5 / 1.1 + 0.6
+    assert centre_line(cfg)[2] == pytest.approx(1.054545454545, rel=1e-9)
+    path.write_text("{not json")
+    assert centre_line(cfg) is None  # the bridge's full read reports the error; nothing commanded early
+
+
 def test_run_commands_neutral_before_loading_mavlink_and_loads_nothing_it_does_not_fly_with(tmp_path):
     """The real command against the mock autopilot and a Maestro on a pty. Python's import log
     (PYTHONPROFILEIMPORTTIME) and the bridge's log share stderr, in order."""
@@ -94,6 +112,8 @@ def test_run_commands_neutral_before_loading_mavlink_and_loads_nothing_it_does_n
     neutral = next(i for i, ln in enumerate(lines) if "servo board" in ln and "neutral" in ln)
     first_mavlink = next(i for i, ln in enumerate(lines) if ln.startswith("import time:") and "pymavlink" in ln)
     assert neutral < first_mavlink, "neutral must be commanded before MAVLink is loaded"
+    first_numpy = next(i for i, ln in enumerate(lines) if ln.startswith("import time:") and "numpy" in ln)
+    assert neutral < first_numpy, "... and before numpy"
     assert targets[:2] == [(0, 1607.0), (1, 1607.0)]  # the first two commands: neutral, as computed above
     heavy = sorted({m.split(".")[0] for m in imported} & {"numba", "llvmlite", "scipy", "matplotlib", "tqdm"})
     assert heavy == [], f"warpbridge run imported {heavy}"
