@@ -18,7 +18,8 @@ the real command, ``warpbridge run``, on SERIAL1, with a Pololu Maestro emulated
 The checks: the servo targets follow an aileron sweep in the right direction, with the
 hysteresis of the feed-forward visible; the start STATUSTEXT and the named values reach the
 ground station through the FC; a parameter set through the FC is answered (and a refused one
-explained); the output-function check names a wrong channel (``--check`` and at run time).
+explained); the output-function check names a wrong channel (``--check`` and at run time) and
+judges again when a ground station changes an output's function.
 
 ``WARPBRIDGE_PX4`` (a PX4 SITL build) is not exercised here yet; docs/autopilot-sitl.md has the
 manual procedure for PX4's SIH airplane.
@@ -379,4 +380,19 @@ def test_output_function_check_names_a_wrong_channel(plane, bridge_factory, tmp_
     assert wait_for(lambda: gcs.text("WB L out 2 is elevator, not aileron", t0), 30.0), \
         bridge.log()[-3000:]
     assert "is NOT an aileron" in bridge.log()
+    assert bridge.stop() == 0
+
+
+def test_a_changed_output_function_is_judged_again(plane, bridge_factory):
+    _, gcs = plane
+    t0 = time.monotonic()
+    bridge = bridge_factory("changed")
+    assert wait_for(lambda: "left wing: FC output 1 is an aileron" in bridge.log(), 30.0), bridge.log()[-3000:]
+    try:  # a ground station moves the aileron off output 1: ArduPilot announces the new value on every link
+        gcs.mav.mav.param_set_send(1, 1, b"SERVO1_FUNCTION", 0, mavlink.MAV_PARAM_TYPE_INT16)
+        assert wait_for(lambda: gcs.text("WB L out 1 is disabled, not aileron", t0), 15.0), bridge.log()[-3000:]
+    finally:
+        gcs.mav.mav.param_set_send(1, 1, b"SERVO1_FUNCTION", 4, mavlink.MAV_PARAM_TYPE_INT16)
+    assert wait_for(lambda: bridge.log().count("left wing: FC output 1 is an aileron") == 2, 15.0), \
+        bridge.log()[-3000:]
     assert bridge.stop() == 0
