@@ -221,6 +221,7 @@ class Bridge:
         self.start = clock()
         self.failsafe = True  # until the first servo message
         self.failsafe_entries = 0
+        self._fs_since = self.start  # when the current failsafe began
         self.cycles = 0
         self._last_tick: float | None = None
         self._next_error_poll = 0.0
@@ -443,9 +444,8 @@ class Bridge:
             self.failsafe_entries += 1
             self._fs_since = now
         if not silent and self.failsafe:
-            since = getattr(self, "_fs_since", self.start)
             log.info("servo outputs from the FC %s after %.1f s: following the FC",
-                     "back" if self.failsafe_entries else "arrived", now - since)
+                     "back" if self.failsafe_entries else "arrived", now - self._fs_since)
             for key in ("fs-start", "fs"):
                 if self.telemetry.active(key):
                     self.telemetry.clear(key)

@@ -18,7 +18,7 @@ and QGroundControl's MAVLink Inspector, logged by ArduPilot as NVAL):
 | ``L_cmd`` / ``R_cmd`` | mm | tendon command sent to the servo (feed-forward + PI) |
 | ``L_ff`` / ``R_ff`` | mm | feed-forward part of the command (inverse Bouc-Wen on the setpoint) |
 | ``L_pi`` / ``R_pi`` | mm | PI trim part of the command |
-| ``WB_mode`` | - | the mode that runs (a wing without its sensor falls back to ff): 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe hold |
+| ``WB_mode`` | - | mode that runs (ff where a sensor is missing): 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe |
 | ``WB_aspd`` | m/s | airspeed the bridge uses |
 | ``WB_lat`` | ms | age of the latest servo output message at use |
 | ``WB_cal`` / ``WB_cal_pct`` | - / % | self-calibration state and progress (``bridge.calibrate``) |
