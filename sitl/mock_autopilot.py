@@ -648,6 +648,12 @@ def main(argv: list[str] | None = None) -> int:
         roll = load_scenario(args.scenario)
         if isinstance(roll, SineRoll):
             roll.amplitude_us, roll.freq_hz = args.amplitude, args.freq
+    try:
+        roles = parse_output_functions(args.output_function)
+        OutputFunctionParams(args.autopilot, roles)  # checks the roles
+    except ValueError as e:
+        print(f"mock_autopilot: {e}", file=sys.stderr)
+        return 2
     mock = MockAutopilot(
         fc,
         args.gcs or args.gcs_port,
@@ -656,7 +662,7 @@ def main(argv: list[str] | None = None) -> int:
         airspeed_source=airspeed_source,
         armed=args.armed,
         seed=args.seed,
-        output_functions=parse_output_functions(args.output_function),
+        output_functions=roles,
     )
     signal.signal(signal.SIGTERM, lambda *_: mock._stop.set())
     if args.stall_at is not None:
