@@ -11,7 +11,10 @@ ff+pi, so the PI and the pre-tension estimator run). For each run it measures:
 - ``follows FC``: from spawning to the first cycle that follows the FC's aileron (the bridge's
   first ``WB_mode`` NAMED_VALUE_FLOAT that is not -1, as the mock autopilot receives it);
 - ``cpu/cycle``: CPU time per 100 Hz cycle in steady state, from the process's rusage over a long
-  and a short run (difference divided by the difference in cycles).
+  and a short run (difference divided by the difference in cycles);
+
+and, apart, the cost of one control cycle per kernel mode (``_tick_cost.py``: ``Bridge.tick`` with
+both sensors, ff+pi, the pre-tension estimator on; median, mean and p99).
 
 Variants: the default lean run path (kernels interpreted, ``model._jit``), with an empty numba cache
 (``NUMBA_CACHE_DIR`` pointing at a fresh directory: the first boot of a new install) and with the
@@ -74,6 +77,17 @@ bias_deg = 2
 counts = [0, 1000]
 deg = [0, 20]
 """
+
+
+def tick_cost(mode: str) -> tuple[float, float, float]:
+    """(median, mean, p99) ms of one ``Bridge.tick`` with the kernels ``mode``, in a process of its own."""
+    env = {k: v for k, v in os.environ.items() if k != "WARPBRIDGE_JIT"}
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "_tick_cost.py"), mode], capture_output=True,
+                       text=True, env=env, timeout=600)
+    if r.returncode != 0:
+        raise RuntimeError(r.stderr[-2000:])
+    a, b, c = (float(x) for x in r.stdout.split()[-3:])
+    return a, b, c
 
 
 class WatchingMock(MockAutopilot):
@@ -195,6 +209,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nmedians of {args.runs} runs each ({args.duration:g} s per run; first servo cmd and the floor's time are"
           f" from spawning the process: for the floor, to its exit)")
     print(f"before the lean run path (issue 12): peak RSS {OLD['rss']}, {OLD['first']}")
+    n_tick = max(1, args.runs // 2)
+    ticks = {mode: [tick_cost(mode) for _ in range(n_tick)] for mode in ("interpreted", "compiled")}
+    print()
+    print(table([[mode, *(statistics.median(r[i] for r in rs) for i in range(3))] for mode, rs in ticks.items()],
+                ["kernels", "tick median ms", "tick mean ms", "tick p99 ms"]))
+    print(f"one Bridge.tick (both sensors, ff+pi, estimator on): medians over {n_tick} processes of 3000 cycles")
     print("targets: peak RSS < 100 MB; first servo command < 1 s with a warm cache")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
