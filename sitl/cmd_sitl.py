@@ -598,9 +598,23 @@ def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> No
 # ------------------------------------------------------------------ entry point
 
 
+MAX_DURATION_S = 3600.0  # an hour of flight; the lock-step replay of it takes tens of minutes
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse option values that would fail deep inside the run, with one line each."""
+    if not 0 < args.duration <= MAX_DURATION_S:
+        raise UserError(f"--duration must be within 0..{MAX_DURATION_S:g} s (got {args.duration:g})")
+    if args.seed < 0:
+        raise UserError("--seed must be 0 or more")
+    for name in ("kp", "ki"):
+        v = getattr(args, name)
+        if v is not None and not 0 <= v <= 100:
+            raise UserError(f"--{name} must be within 0..100 (got {v:g})")
+
+
 def main(args: argparse.Namespace) -> int:
-    if not args.duration > 0:
-        raise UserError("--duration must be positive")
+    check_options(args)
     spec = wing_spec(args.model, parse_effects(args.effects))
     if args.lockstep:
         scenarios = (args.scenario,) if args.scenario else ("random", "gust7", "gust12")
@@ -615,7 +629,10 @@ def main(args: argparse.Namespace) -> int:
         return 0
     gcs = gcs_outputs(args)
     out = args.out or Path(f"sitl-run-{time.strftime('%Y%m%d-%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot make the folder ({e.strerror or e})") from None
     # Ctrl-C and SIGTERM both unwind through run_realtime's clean-up (even where SIGINT was ignored)
     old = {s: signal.signal(s, _raise_interrupt) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
