@@ -99,7 +99,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MODEL.json the simulated wing follows (params and effects; default: the paper's)")
     parser.add_argument("--bridge-model", default="paper",
                         help="model the bridge's feed-forward uses: 'paper' or a MODEL.json (default paper)")
-    parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                        help="the flight controller the mock imitates: its messages, streams and parameter "
+                             "encoding (default ardupilot)")
     parser.add_argument("--mode", choices=MODES, default="ff+pi", help="bridge controller mode (real-time run)")
     parser.add_argument("--kp", type=float, default=None,
                         help=f"PI gain, mm/deg (default: {RIG_KP:g} for the simulated rig's fast servo in real time; "
