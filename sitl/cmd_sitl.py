@@ -81,6 +81,7 @@ STARTUP_TIMEOUT_S = 30.0  # for each child to come up
 MOCK_START_MAX_S = 10.0  # longest the mock autopilot's process may take from launch to its roll clock's start
 END_MARGIN_S = 0.2  # rig time flown beyond the scenario's stretch
 AGREE_TOLERANCE = 0.20
+COARSE_MATCH_S = 30.0  # log stretch the coarse search of the scenario offset looks at
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -344,11 +345,14 @@ def scenario_offset(scenario: Scenario, t: np.ndarray, setpoint: np.ndarray, lo:
     (flying cycles only) to the scenario's reference."""
     ok = np.isfinite(setpoint)
     t, sp = t[ok], setpoint[ok]
-    best, best_err = lo, math.inf
-    for step, span in ((0.005, None), (0.0002, 0.006)):
+    coarse = t <= t[0] + COARSE_MATCH_S if t.size else ok  # the shift is one number: a stretch finds it
+    best = lo
+    for step, span, keep in ((0.005, None, coarse), (0.0002, 0.006, slice(None))):
         a, b = (lo, hi) if span is None else (best - span, best + span)
+        tt, ss = t[keep], sp[keep]
+        best_err = math.inf
         for tau in np.arange(a, b + step / 2, step):
-            err = float(np.mean((scenario.reference(t + tau)["left"] - sp) ** 2))
+            err = float(np.mean((scenario.reference(tt + tau)["left"] - ss) ** 2))
             if err < best_err:
                 best, best_err = float(tau), err
     return best
@@ -464,6 +468,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
 
     if not bridge_log.exists():
         raise UserError(f"the bridge wrote no cycle log; see {out / 'bridge.log'}:\n{_tail(out / 'bridge.log')}")
+    print(f"sitl: joining the bridge's {_count_lines(bridge_log)} logged cycles to the wings' true warp ...",
+          flush=True)
     cyc = read_cycle_log(bridge_log)
     np.savez_compressed(out / "rig.npz", **{f"{w}_{k}": np.asarray(v, dtype=np.float64) for w in WINGS for k, v in
                                            (("reads", vrig.reads[w]), ("targets", vrig.target_log[w]))})
@@ -532,6 +538,11 @@ def gcs_banner(gcs: list[str]) -> str:
         where.append(f"listening on {address}" if kind in ("udpin", "tcpin") else f"sending to {address}")
     return (f"{', '.join(where)} ({', '.join(gcs)}); the autopilot is component 1, the bridge component 191 "
             "(QGroundControl, Mission Planner, MAVProxy listen on 14550)")
+
+
+def _count_lines(path: Path) -> int:
+    with path.open("rb") as f:
+        return max(0, sum(1 for _ in f) - 1)
 
 
 def _text(path: Path) -> str:

@@ -103,19 +103,21 @@ def plot_run(result: RunResult, path: str | Path, title: str | None = None, othe
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     wings = list(result.setpoint)
     t = result.t
     long_run = t.size > 1 and float(t[-1] - t[0]) > LONG_RUN_S
     rows = 4 if long_run else 3
-    fig, axes = plt.subplots(rows, len(wings), figsize=(6.5 * len(wings), 3.1 * rows + 0.6), squeeze=False)
+    fig, axes = plt.subplots(rows, len(wings), figsize=(6.5 * len(wings), 3.1 * rows + 1.0), squeeze=False)
     lo, hi = result.stretch
     shaded = np.isfinite(lo) and np.isfinite(hi)
     band = Patch(color="0.93", label="RMS stretch (after settling)")
     sp_style = dict(color="0.35", lw=3.0, alpha=0.45, solid_capstyle="butt", label="setpoint")
-    rt_style = dict(color="tab:red", lw=0.9, label="true warp, real time")
-    ot_style = dict(color="tab:blue", lw=0.7, ls=(0, (3, 2)), label=f"true warp, {other_label}")
+    rt_style = dict(color="tab:red", lw=0.9, label="real time: true warp, its error")
+    ot_style = dict(color="tab:blue", lw=0.7, ls=(0, (3, 2)), label=f"{other_label}: true warp, its error")
+    zoom_patch = Patch(color="gold", alpha=0.35, label=f"window zoomed below ({ZOOM_S:g} s)")
     for j, w in enumerate(wings):
         sp, wt = result.setpoint[w], result.warp[w]
         err = sp - wt
@@ -133,7 +135,7 @@ def plot_run(result: RunResult, path: str | Path, title: str | None = None, othe
         ax.set_ylabel("warp (deg)")
         zoom = worst_window(t, err, lo, hi, ZOOM_S) if long_run else None
         if zoom is not None:
-            ax.axvspan(*zoom, color="gold", alpha=0.35, zorder=0, label=f"zoomed below ({ZOOM_S:g} s)")
+            ax.axvspan(*zoom, color=zoom_patch.get_facecolor(), zorder=0)
             ax = axes[1, j]
             m = (t >= zoom[0]) & (t <= zoom[1])
             ax.plot(t[m], sp[m], **sp_style)
@@ -145,17 +147,17 @@ def plot_run(result: RunResult, path: str | Path, title: str | None = None, othe
             ax.set_ylabel("warp (deg)")
         ax = axes[rows - 2, j]
         if long_run:
-            for res, style, name in ((other, ot_style, other_label), (result, rt_style, "real time")):
+            for res, style in ((other, ot_style), (result, rt_style)):
                 if res is None:
                     continue
                 bt, br = binned_rms(res.t, res.setpoint[w] - res.warp[w], 1.0)
-                ax.plot(bt, br, color=style["color"], lw=1.0, ls=style.get("ls", "-"), label=name)
+                ax.plot(bt, br, color=style["color"], lw=1.0, ls=style.get("ls", "-"))
             ax.set_ylabel("RMS per 1 s of\nsetpoint - true warp (deg)")
         else:
             if other is not None:
                 ax.plot(other.t, other.setpoint[w] - other.warp[w], color=ot_style["color"], lw=0.6,
-                        ls=ot_style["ls"], label=other_label)
-            ax.plot(t, err, color=rt_style["color"], lw=0.8, label="real time")
+                        ls=ot_style["ls"])
+            ax.plot(t, err, color=rt_style["color"], lw=0.8)
             ax.axhline(0.0, color="k", lw=0.5)
             ax.set_ylabel("setpoint - true warp (deg)")
         for r in range(rows - 1):
@@ -163,8 +165,6 @@ def plot_run(result: RunResult, path: str | Path, title: str | None = None, othe
             if shaded:
                 a.axvspan(lo, hi, color=band.get_facecolor(), zorder=-1)
             a.set_xlabel("t (s)")
-            handles, _ = a.get_legend_handles_labels()
-            a.legend(handles=handles + ([band] if shaded else []), loc="upper right", fontsize=7, framealpha=0.85)
         if zoom is not None:
             axes[1, j].set_xlim(*zoom)
         ax = axes[rows - 1, j]
@@ -175,7 +175,12 @@ def plot_run(result: RunResult, path: str | Path, title: str | None = None, othe
         ax.set_title("hysteresis (tendon -> warp)" + (f", {zoom[0]:.0f}..{zoom[1]:.0f} s" if zoom else ""))
     fig.suptitle((title or f"{result.scenario}, {MODE_LABEL.get(result.mode, result.mode)}")
                  + "\ntrue warp: the simulated wing's warp at each sensor read of the bridge", fontsize=11)
-    fig.tight_layout()
+    handles = [Line2D([], [], **sp_style), Line2D([], [], **rt_style)]
+    handles += [Line2D([], [], **ot_style)] if other is not None else []
+    handles += ([band] if shaded else []) + ([zoom_patch] if long_run else [])
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=8, frameon=False,
+               bbox_to_anchor=(0.5, 1.0 - 0.75 / fig.get_figheight()))
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.85 / fig.get_figheight()))
     p = Path(path)
     fig.savefig(p, dpi=90)
     plt.close(fig)

@@ -48,5 +48,5 @@ def test_plot_of_a_short_and_a_long_run(tmp_path, duration):
     png = plot_run(rt, tmp_path / "sitl.png", other=other)
     img = mpimg.imread(png)
     rows = 4 if duration > LONG_RUN_S else 3  # long runs get the zoomed row
-    assert img.shape[0] == pytest.approx(90 * (3.1 * rows + 0.6), abs=2)
+    assert img.shape[0] == pytest.approx(90 * (3.1 * rows + 1.0), abs=2)
     assert math.isfinite(rt.rms["left"])
