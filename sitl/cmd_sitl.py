@@ -574,9 +574,20 @@ def _wait_until(done, vrig: VirtualRig, children, out: Path, what: str) -> None:
 def stage_progress(label: str, total_s: float) -> Iterator[Callable[[float], None]]:
     """A progress callback over ``total_s`` simulated seconds: a tqdm bar on a terminal, else a line
     when the stage starts and one when it ends (with its wall time)."""
+    t0 = time.monotonic()
+    quiet = logging.getLogger("warpbridge.bridge.telemetry")  # the replayed bridge's status lines, again
+    level = quiet.level
+    quiet.setLevel(max(logging.WARNING, quiet.getEffectiveLevel()))
+    try:
+        yield from _stage_bar(label, total_s)
+    finally:
+        quiet.setLevel(level)
+    print(f"{label}: done in {time.monotonic() - t0:.1f} s", flush=True)
+
+
+def _stage_bar(label: str, total_s: float) -> Iterator[Callable[[float], None]]:
     from tqdm import tqdm
 
-    t0 = time.monotonic()
     if sys.stderr.isatty():
         with tqdm(total=round(total_s, 1), unit="s", desc=label, leave=False) as bar:
             def update(t: float) -> None:
@@ -587,7 +598,6 @@ def stage_progress(label: str, total_s: float) -> Iterator[Callable[[float], Non
     else:
         print(f"{label}: {total_s:.0f} s simulated ...", flush=True)
         yield lambda t: None
-    print(f"{label}: done in {time.monotonic() - t0:.1f} s", flush=True)
 
 
 def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> None:
