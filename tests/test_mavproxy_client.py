@@ -83,8 +83,12 @@ def test_mavproxy_lists_sets_and_sees_the_bridge(tmp_path):
         assert wait_for(lambda: json.loads((tmp_path / "params.json").read_text())["params"].get("WB_KP") == 5.0
                         if (tmp_path / "params.json").exists() else False, 5.0)
         mark = len(mp.output())
-        mp.command("param show WB_KP")
-        assert wait_for(lambda: "WB_KP            5.0" in mp.output()[mark:], 5.0), mp.output()[mark:]
+
+        def shown() -> bool:  # MAVProxy's table follows the echo when its loop gets to it: ask again
+            mp.command("param show WB_KP")
+            return wait_for(lambda: "WB_KP            5.0" in mp.output()[mark:], 1.0)
+
+        assert wait_for(shown, 15.0, step=0.0), mp.output()[mark:]
 
         mp.command("param set WB_KI 500")  # refused: the bridge says why, MAVProxy shows it
         assert wait_for(lambda: "param WB_KI: 500 above max 50" in mp.output(), 5.0), mp.output()
@@ -102,8 +106,10 @@ def test_mavproxy_lists_sets_and_sees_the_bridge(tmp_path):
 
 
 def test_mavproxy_parameter_fetch_over_ftp_beats_the_plain_list(tmp_path):
-    """MAVProxy fetches over MAVLink FTP first; answered at once, that is faster than the plain
-    PARAM_REQUEST_LIST (paced for a radio), where an unanswered FTP would cost its ten 1 s retries."""
+    """MAVProxy fetches over MAVLink FTP first; answered at once, that takes two round trips, faster
+    than the plain PARAM_REQUEST_LIST (paced for a radio), where an unanswered FTP would cost its ten
+    1 s retries first. Three fetches each way in the same run; the best of each is compared, as a busy
+    machine stretches single round trips."""
     rig = Rig(tmp_path)
     mp = None
     try:
@@ -111,14 +117,19 @@ def test_mavproxy_parameter_fetch_over_ftp_beats_the_plain_list(tmp_path):
         rig.gcs.close()
         mp = MavProxy(rig.gcs_port, tmp_path)
         assert wait_for(lambda: "Received" in mp.output(), 20.0), mp.output()
-        ftp_s, m = mp.timed("param fetch", r"Received (\d+) parameters \(ftp\)")
-        assert m is not None, mp.output()
-        n = int(m.group(1))
-        mp.command("set param_ftp 0")
-        list_s, m = mp.timed("param fetch", r"Received (\d+) parameters\n")
-        assert m is not None and int(m.group(1)) == n, mp.output()
-        print(f"MAVProxy parameter fetch of {n} parameters: FTP {ftp_s:.3f} s, PARAM_REQUEST_LIST {list_s:.3f} s")
-        assert ftp_s < list_s
+        n = int(re.search(r"Received (\d+) parameters \(ftp\)", mp.output()).group(1))
+        times: dict[str, list[float]] = {"ftp": [], "list": []}
+        for how, setting, pattern in (("ftp", "1", r"Received (\d+) parameters \(ftp\)"),
+                                      ("list", "0", r"Received (\d+) parameters\n")):
+            mp.command(f"set param_ftp {setting}")
+            for _ in range(3):
+                took, m = mp.timed("param fetch", pattern)
+                assert m is not None and int(m.group(1)) == n, mp.output()
+                times[how].append(took)
+        print(f"MAVProxy parameter fetch of {n} parameters, 3 each: FTP {sorted(times['ftp'])} s, "
+              f"PARAM_REQUEST_LIST {sorted(times['list'])} s")
+        assert "FTP: request timed out" not in mp.output() and "retry" not in mp.output().lower()
+        assert min(times["ftp"]) < min(times["list"])
     finally:
         if mp is not None:
             mp.close()
