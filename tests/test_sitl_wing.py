@@ -112,7 +112,6 @@ def test_wing_holds_its_rest_warp_and_follows_a_pull():
 
 
 def test_sheath_wing_starts_where_asked_and_logs_a_bench_run_through_the_sensor():
-    pytest.importorskip("warpbridge.sitl.sheath")
     from warpbridge.sitl.sheath import rigged_sheath
     from warpbridge.sitl.wing import SheathWing, bench_log
 
