@@ -141,8 +141,12 @@ def test_sensor_validation_errors(table, message):
         SensorCalibration.from_dict(table)
 
 
-@given(st.lists(st.floats(-1e4, 1e4), min_size=2, max_size=12, unique=True),
-       st.floats(-2e4, 2e4), st.booleans())
+# counts no closer than 1e-6: numpy 1.26's interp overflows to inf on table steps of ~1e-322 (newer numpy
+# and the bridge's table give the finite answer), which no sensor table has
+COUNT = st.one_of(st.just(0.0), st.floats(1e-6, 1e4), st.floats(-1e4, -1e-6))
+
+
+@given(st.lists(COUNT, min_size=2, max_size=12, unique=True), st.floats(-2e4, 2e4), st.booleans())
 def test_sensor_table_interpolates_as_numpy_does(xs, x, falling):
     """The table is read without numpy (the bridge commands neutral before numpy loads): same answers."""
     counts = sorted(xs)
