@@ -14,6 +14,7 @@ import signal
 import threading
 from pathlib import Path
 
+from warpbridge.bridge import realtime
 from warpbridge.bridge.app import load_model, run_bridge, servo_limits
 from warpbridge.bridge.config import Config, backend_has_sensor, load_config
 from warpbridge.bridge.errors import UserError
@@ -114,6 +115,7 @@ def main(args: argparse.Namespace) -> int:
         stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)
+    realtime.apply(config.loop)  # priority, affinity, locked memory, gc frozen: as far as permitted
     try:
         result = run_bridge(config, stop_event=stop, duration=args.duration)
     except KeyboardInterrupt:

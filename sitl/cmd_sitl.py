@@ -242,7 +242,10 @@ def join_reads(log_t: np.ndarray, logged_deg: np.ndarray, reads: list, deg_of_co
     """Match each cycle-log row to the sensor read the bridge made in that cycle.
 
     ``reads``: the rig's records (rig time, counts, ...) in order. The rig time of log time 0 is
-    the smallest read-minus-cycle delay over the first rows; then each row takes the first unused
+    the smallest read-minus-cycle delay over the first rows. The bridge reads each sensor once per
+    cycle and the board answers in order, so when there are as many reads as rows the j-th read is
+    the j-th row's; that is taken when the counts give exactly the logged warp on 98 % of the rows
+    (however late the board answered on a busy machine). Otherwise each row takes the first unused
     read in ``window_s`` around its time whose counts give exactly the logged warp. Returns the
     index of the read per row (-1: none, e.g. a read the bridge timed out on) and that offset."""
     n = len(log_t)
@@ -253,6 +256,13 @@ def join_reads(log_t: np.ndarray, logged_deg: np.ndarray, reads: list, deg_of_co
     rt, deg = rec[:, 0], np.asarray(deg_of_counts(rec[:, 1]), dtype=np.float64)
     k = min(n, len(rt), 50)
     offset = float(np.min(rt[:k] - log_t[:k]))
+    logged = np.asarray(logged_deg, dtype=np.float64)
+    if len(rt) == n:
+        have = np.isfinite(logged)
+        same = have & (np.abs(deg - logged) <= 1e-4 * np.maximum(1.0, np.abs(logged)))
+        if np.count_nonzero(same) >= 0.98 * np.count_nonzero(have):
+            idx[same] = np.flatnonzero(same)
+            return idx, offset
     p = 0
     for j in range(n):
         if not math.isfinite(logged_deg[j]):
@@ -270,16 +280,19 @@ def join_reads(log_t: np.ndarray, logged_deg: np.ndarray, reads: list, deg_of_co
 
 
 def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], vrig: VirtualRig,
-                    ) -> tuple[RunResult, float]:
+                    ) -> tuple[RunResult, float, dict[str, np.ndarray]]:
     """The bridge's cycle log joined with the wings' true warp at each of its sensor reads.
 
-    Times stay the log's (seconds since the bridge started); also returns the rig time of log time 0."""
+    Times stay the log's (seconds since the bridge started); also returns the rig time of log time 0
+    and each row's read per wing (``join_reads``)."""
     t = cyc["t"]
     sensor = scenario.rig.sensor
     cols: dict[str, dict[str, np.ndarray]] = {"warp": {}, "u": {}, "airspeed": {}}
     offset = math.nan
+    read_idx = {}
     for w in WINGS:
         idx, off = join_reads(t, cyc[f"{w}_warp"], vrig.reads[w], sensor.deg_of_counts)
+        read_idx[w] = idx
         if w == "left":
             offset = off
         rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
@@ -301,7 +314,7 @@ def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], v
         measured={w: cyc[f"{w}_warp"] for w in WINGS}, u_cmd={w: cyc[f"{w}_u"] for w in WINGS},
         u=cols["u"], flying=flying,
     )
-    return res, offset
+    return res, offset, read_idx
 
 
 def scenario_offset(scenario: Scenario, t: np.ndarray, setpoint: np.ndarray, lo: float, hi: float) -> float:
@@ -344,27 +357,62 @@ def measured_schedule(t: np.ndarray, flying: np.ndarray, tau: float, loop_hz: fl
                     stream_start_s=start - lat - 0.25 * speriod, wake_on_message=wake)
 
 
-def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig) -> tuple[tuple[float, ...], ...]:
-    """Per cycle-log row: when the bridge read each sensor and set each servo, after the cycle's start
-    (s; (left read, left target, right read, right target); the median where a row has no read)."""
+def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig, read_idx: dict[str, np.ndarray],
+              ) -> tuple[tuple[float, ...], ...]:
+    """Per cycle-log row: when the bridge's sensor read and servo target of each wing reached the rig,
+    after the cycle's start (s; (left read, left target, right read, right target)).
+
+    The bridge reads each sensor and then sets each servo once per cycle, and the board handles them
+    in order: with as many reads (targets) as rows, the j-th is the j-th row's, answered or not.
+    Otherwise a row's read is the one ``read_idx`` matched (``join_reads``; the median delay where
+    none did: a read the driver did not send) and its target the first after it. Delays are kept
+    however long: on a busy machine the board may take several cycles to answer, and the replay
+    must see that."""
     cols = []
+    start = log_t + rig_at_log0
     for w in WINGS:
         rd = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)[:, 0]
         tg = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
-        start = log_t + rig_at_log0
-        i = np.searchsorted(rd, start - 0.002)  # the first read at or after the cycle's start
-        r = np.full(log_t.size, np.nan)
-        ok = i < rd.size
-        r[ok] = rd[i[ok]] - start[ok]
-        j = np.searchsorted(tg, start + np.nan_to_num(r, nan=0.0))  # the first target after that read
-        g = np.full(log_t.size, np.nan)
-        ok = j < tg.size
-        g[ok] = tg[j[ok]] - start[ok]
-        for c in (r, g):
-            bad = ~np.isfinite(c) | (c > 0.05)
-            c[bad] = np.median(c[~bad]) if (~bad).any() else 0.0
-        cols += [r, g]
+        if rd.size == log_t.size:
+            r = rd - start
+        else:
+            ok = read_idx[w] >= 0
+            r = np.full(log_t.size, np.nan)
+            r[ok] = rd[read_idx[w][ok]] - start[ok]
+            r[~ok] = np.median(r[ok]) if ok.any() else 0.0
+        if tg.size == log_t.size:
+            g = tg - start
+        else:
+            j = np.searchsorted(tg, start + r)
+            g = np.full(log_t.size, np.nan)
+            g[j < tg.size] = tg[j[j < tg.size]] - start[j < tg.size]
+            g[~np.isfinite(g)] = np.median(g[np.isfinite(g)]) if np.isfinite(g).any() else 0.0
+        cols += [np.maximum(r, 0.0), np.maximum(g, 0.0)]
     return tuple(zip(*(c.tolist() for c in cols), strict=True))
+
+
+def fc_pwm_of(setpoint_left: np.ndarray, flying: np.ndarray, rig: Rig) -> tuple[float, ...]:
+    """The FC's aileron PWM (us) each cycle of the real-time run had, from the left wing's logged
+    setpoint (the rig's mix inverted; the FC sends whole microseconds); NaN before it followed the FC."""
+    w, bias, top = np.asarray(setpoint_left, dtype=np.float64), rig.bias_deg, rig.max_warp_deg
+    a = np.where(w >= bias, (w - bias) / (top - bias), w / bias - 1.0)
+    pwm = np.round(rig.pwm_of(a))
+    return tuple(np.where(flying & np.isfinite(pwm), pwm, np.nan).tolist())
+
+
+def board_answers(logged_deg: dict[str, np.ndarray], read_idx: dict[str, np.ndarray], counts_of_deg,
+                  ) -> tuple[tuple[float | None, ...], ...]:
+    """Per cycle-log row and wing (left, right): what the lock-step board answers the bridge's read.
+
+    None where the bridge got its own read's answer (the replay reads its simulated wing); otherwise
+    what the bridge got instead: NaN when no answer came in time, or the counts of the answer it took
+    (a late answer to an earlier query, on a board starved of CPU)."""
+    cols = []
+    for w in WINGS:
+        got = np.asarray(logged_deg[w], dtype=np.float64)
+        counts = np.where(np.isfinite(got), np.round(counts_of_deg(np.nan_to_num(got))), np.nan)
+        cols.append([None if i >= 0 else float(c) for i, c in zip(read_idx[w], counts, strict=True)])
+    return tuple(zip(*cols, strict=True))
 
 
 def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
@@ -431,7 +479,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     cyc = read_cycle_log(bridge_log)
     np.savez_compressed(out / "rig.npz", **{f"{w}_{k}": np.asarray(v, dtype=np.float64) for w in WINGS for k, v in
                                            (("reads", vrig.reads[w]), ("targets", vrig.target_log[w]))})
-    rt, rig_at_log0 = realtime_result(scenario, args.mode, cyc, vrig)
+    rt, rig_at_log0, read_idx = realtime_result(scenario, args.mode, cyc, vrig)
     # log time -> scenario time: the scenario started with the mock's process, after the bridge's log
     guess = rig_at_log0 - t_mock
     fl = rt.flying if rt.flying is not None else np.ones(rt.t.size, dtype=bool)
@@ -446,7 +494,11 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         raise UserError(f"the bridge followed the FC for only {max(0.0, t_to - t_from + SETTLE_S):.1f} s")
     print("sitl: flying the same stretch in lock-step (the bridge's cycle on a simulated clock) ...", flush=True)
     runs = {}
-    replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig))
+    table_counts, table_deg = rig.sensor.calibration_table()
+    answers = board_answers({w: cyc[f"{w}_warp"] for w in WINGS}, read_idx,
+                            lambda d: np.interp(d, table_deg, table_counts))
+    replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig, read_idx),
+                     answers=answers, fc_pwm=fc_pwm_of(cyc["left_setpoint"], fl, rig))
     for label, sch in (("lock-step", replay), ("ideal timing", sched)):
         runs[label], _ = run_lockstep(
             scenario, mode=args.mode, spec=spec, config=rig_config(rig, args.mode, kw["kp"], kw["ki"]),

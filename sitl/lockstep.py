@@ -197,7 +197,10 @@ class Schedule:
     and the FC's HEARTBEAT at 1 Hz from ``heartbeat_offset_s``. ``wake_on_message`` None: the
     config's ``[loop] wake_on_message``. ``cycle_times``: run the cycles exactly then instead
     (a real-time run's, from its cycle log: its scheduling gaps included), with ``io_delays`` per
-    cycle: (left sensor read, left servo target, right read, right target) after the cycle's start."""
+    cycle: (left sensor read, left servo target, right read, right target) after the cycle's start,
+    ``answers`` per cycle and wing: None = the board reads the wing, else what the real-time bridge
+    got instead (NaN: no answer in time; counts: a late answer to an earlier query), and ``fc_pwm``
+    per cycle: the aileron PWM the real-time bridge had from the FC then (its messages' own timing)."""
 
     tick_offset_s: float = 0.0
     msg_offset_s: float = 0.0037
@@ -208,6 +211,8 @@ class Schedule:
     wake_on_message: bool | None = None
     cycle_times: tuple[float, ...] | None = None
     io_delays: tuple[tuple[float, float, float, float], ...] | None = None
+    answers: tuple[tuple[float | None, float | None], ...] | None = None
+    fc_pwm: tuple[float, ...] | None = None
 
 
 class SimLink(SimLinkBase):
@@ -224,6 +229,7 @@ class SimLink(SimLinkBase):
         self._pending: list[tuple[str, object]] = []
         self._every = max(1, round(1.0 / (fc.period * schedule.airspeed_rate_hz)))
         self._next_hb = schedule.heartbeat_offset_s
+        self.pwm_override: dict[int, float] | None = None  # replays: the PWM a real-time cycle had
 
     def next_arrival(self) -> float:
         """When the next message (servo output or heartbeat) reaches the bridge."""
@@ -252,6 +258,9 @@ class SimLink(SimLinkBase):
             elif kind == "airspeed":
                 self.airspeed, self.airspeed_time = float(value), now  # type: ignore[arg-type]
         self._pending.clear()
+        if self.pwm_override is not None and self.servo_time is not None:
+            self.servo_raw = dict(self.pwm_override)
+            self.servo_pwm = dict(self.pwm_override)
         return []
 
 
@@ -276,6 +285,7 @@ class WingBoard:
         self.targets = 0
         self.target_log: dict[str, list[tuple[float, float]]] = {w: [] for w in WINGS}
         self.delays: dict[str, tuple[float, float]] = {}  # wing -> (read, target) delay after clock()
+        self.answers: dict[str, float | None] = {}  # wing -> what the next read answers instead (replays)
 
     def set_target(self, channel: int, pulse_us: float) -> None:
         wing = self.servo_of.get(channel)
@@ -297,6 +307,9 @@ class WingBoard:
         wing = self.sensor_of.get(channel)
         if wing is None:
             return None
+        if self.answers.get(wing) is not None:  # a replayed answer: no answer (NaN) or someone else's
+            counts = self.answers[wing]
+            return None if not math.isfinite(counts) else counts
         t = self.clock() + self.delays.get(wing, (0.0, 0.0))[0]
         w = self.wings[wing]
         w.advance(t)
@@ -384,14 +397,19 @@ def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: Wi
     k = math.ceil((0.0 - sched.tick_offset_s) / period - 1e-9)
     given = None
     if sched.cycle_times is not None:
-        delays = sched.io_delays or ((0.0, 0.0, 0.0, 0.0),) * len(sched.cycle_times)
-        given = iter(sorted((x, d) for x, d in zip(sched.cycle_times, delays, strict=True) if x >= 0.0))
+        n = len(sched.cycle_times)
+        delays = sched.io_delays or ((0.0, 0.0, 0.0, 0.0),) * n
+        answers = sched.answers or ((None,) * len(WINGS),) * n
+        pwm = sched.fc_pwm or (math.nan,) * n
+        given = iter(sorted(((x, d, a, p) for x, d, a, p in zip(sched.cycle_times, delays, answers, pwm, strict=True)
+                             if x >= 0.0), key=lambda e: e[0]))
     rows: list[tuple] = []
     while True:
         if given is not None:
-            t, d = next(given, (math.inf, (0.0, 0.0, 0.0, 0.0)))
-            board.delays = {w: (max(0.0, d[2 * i]), max(0.0, d[2 * i], d[2 * i + 1]))
-                            for i, w in enumerate(WINGS)}
+            t, d, a, p = next(given, (math.inf, (0.0, 0.0, 0.0, 0.0), (None,) * len(WINGS), math.nan))
+            link.pwm_override = {cfg.wings["left"].source_channel: p} if math.isfinite(p) else None
+            board.delays = {w: (max(0.0, d[2 * i]), max(0.0, d[2 * i], d[2 * i + 1])) for i, w in enumerate(WINGS)}
+            board.answers = dict(zip(WINGS, a, strict=True))
         else:
             t_tick = sched.tick_offset_s + k * period
             t_msg = link.next_arrival()
