@@ -6,7 +6,8 @@ message asks for a different pulse, and times when the matching Set Target (0x84
 on a Maestro emulator's pty. The same stream goes, one after the other, to:
 
 - ``baseline``: a plain pymavlink recv -> Maestro write loop, no control (a separate process);
-- ``bridge``: ``warpbridge run`` (open mode, no sensor), waking on each message (the default);
+- ``bridge``: ``warpbridge run`` (open mode, no sensor), waking on each message (the default),
+  with ``[loop] realtime`` as ``--realtime`` says (default auto);
 - ``bridge-tick``: the same with ``wake_on_message = false``: the message waits for the 100 Hz tick.
 
 It prints p50/p99/max latency, CPU per message or control cycle (from the process's rusage), and
@@ -66,7 +67,8 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def config(port: int, maestro: str, wake: bool) -> str:
+def config(port: int, maestro: str, wake: bool, loop_extra: str = "", log_name: str | None = None) -> str:
+    """The bridge's TOML: open mode, no sensor, both wings on FC output 1; ``loop_extra``: more [loop] keys."""
     wing = """
 [wing.{name}]
 source_channel = 1
@@ -89,7 +91,8 @@ pwm_jitter_us = 0
 rate_hz = 100
 failsafe_timeout_s = 0.5
 wake_on_message = {"true" if wake else "false"}
-log = "{'bridge' if wake else 'bridge-tick'}-cycles.csv"
+log = "{log_name or ('bridge' if wake else 'bridge-tick')}-cycles.csv"
+{loop_extra}
 [telemetry]
 rate_hz = 10
 [params]
@@ -118,7 +121,7 @@ def expected_pulse(aileron: float, kind: str) -> float:
     return round(min(2000, max(1000, p)) * 4) / 4
 
 
-def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
+def run(kind: str, n: int, rate: float, workdir: Path, realtime: str = "auto") -> dict:
     arrivals: list[tuple[float, float]] = []
     lock = threading.Lock()
 
@@ -135,7 +138,7 @@ def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
         cmd = [sys.executable, "-c", BASELINE, str(port), path]
     else:
         cfg = workdir / f"{kind}.toml"
-        cfg.write_text(config(port, path, wake=(kind == "bridge")))
+        cfg.write_text(config(port, path, wake=(kind == "bridge"), loop_extra=f'realtime = "{realtime}"'))
         cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config", str(cfg)]
     proc = subprocess.Popen(cmd, cwd=workdir, env=env, stderr=subprocess.PIPE, text=True)
     fc = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
@@ -218,17 +221,20 @@ def main() -> int:
     ap.add_argument("--messages", type=int, default=10000)
     ap.add_argument("--rate", type=float, default=400.0)
     ap.add_argument("--only", choices=["baseline", "bridge", "bridge-tick"], action="append")
+    ap.add_argument("--realtime", choices=["auto", "off"], default="auto",
+                    help="the bridge's [loop] realtime (auto: SCHED_FIFO etc. where permitted)")
     args = ap.parse_args()
     kinds = args.only or ["baseline", "bridge", "bridge-tick"]
     rows = {}
     with tempfile.TemporaryDirectory() as d:
         for kind in kinds:
             n = args.messages if kind != "bridge-tick" else min(args.messages, 4000)
-            r = run(kind, n, args.rate, Path(d))
+            r = run(kind, n, args.rate, Path(d), args.realtime)
             rows[kind] = r
             if r["matched"] < 0.9 * r["n"]:
                 print(f"{kind}: only {r['matched']}/{r['n']} messages matched; stderr tail:\n{r['err'][-800:]}")
-    print(f"\nSERVO_OUTPUT_RAW at {args.rate:g} Hz on loopback UDP -> Maestro Set Target on a pty")
+    print(f"\nSERVO_OUTPUT_RAW at {args.rate:g} Hz on loopback UDP -> Maestro Set Target on a pty "
+          f"(bridge [loop] realtime = {args.realtime})")
     print(f"{'variant':<12} {'msgs':>6} {'matched':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
           f"{'cycles':>7} {'CPU us/cycle':>13} {'CPU %':>6} {'p50 x':>6} {'p99 x':>6}")
     base = rows.get("baseline")

@@ -89,6 +89,10 @@ class System:
     def set_fifo(self, priority: int) -> None:
         os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
 
+    def current(self) -> tuple[int, int]:
+        """(scheduling policy without flags, real-time priority) of the calling thread."""
+        return os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK, os.sched_getparam(0).sched_priority
+
     def set_other(self) -> None:
         os.sched_setscheduler(0, os.SCHED_OTHER | os.SCHED_RESET_ON_FORK, os.sched_param(0))
 
@@ -181,11 +185,20 @@ def _scheduling(priority: int, nice: int, sys_: System, rep: RealtimeReport) -> 
             rep.refused.append((f"SCHED_FIFO priority {priority}",
                                 _why(e, "needs root, CAP_SYS_NICE or RLIMIT_RTPRIO >= the priority; "
                                         "see CPUSchedulingPolicy= in deploy/warpbridge.service")))
+        policy, current = sys_.current()
+        if policy in (os.SCHED_FIFO, os.SCHED_RR):  # set from outside (the unit, chrt): keep it
+            if policy == os.SCHED_FIFO:
+                try:
+                    sys_.set_fifo(current)  # the same priority, now with SCHED_RESET_ON_FORK
+                except OSError:
+                    pass
+            rep.applied.append(f"{'SCHED_FIFO' if policy == os.SCHED_FIFO else 'SCHED_RR'} priority {current} "
+                               "as started (kept)")
+            return
     try:
         sys_.set_other()  # SCHED_RESET_ON_FORK: threads started later do not inherit a negative nice
     except OSError as e:
-        rep.refused.append(("ordinary scheduling policy", _why(e, "a real-time policy set from outside "
-                                                                 "may only be left with CAP_SYS_NICE")))
+        rep.refused.append(("ordinary scheduling policy", _why(e, "not permitted")))
         return
     if nice == sys_.get_nice():
         rep.applied.append(f"nice {nice} (already)")
