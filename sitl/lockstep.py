@@ -200,7 +200,9 @@ class Schedule:
     cycle: (left sensor read, left servo target, right read, right target) after the cycle's start,
     ``answers`` per cycle and wing: None = the board reads the wing, else what the real-time bridge
     got instead (NaN: no answer in time; counts: a late answer to an earlier query), and ``fc_pwm``
-    per cycle: the aileron PWM the real-time bridge had from the FC then (its messages' own timing)."""
+    per cycle: the aileron PWM the real-time bridge had from the FC then (its messages' own timing),
+    ``rig_read`` per cycle and wing: whether the rig's sensor took a reading then (whatever the
+    bridge got), so that the replay's sensors draw the same noise in the same order."""
 
     tick_offset_s: float = 0.0
     msg_offset_s: float = 0.0037
@@ -213,6 +215,7 @@ class Schedule:
     io_delays: tuple[tuple[float, float, float, float], ...] | None = None
     answers: tuple[tuple[float | None, float | None], ...] | None = None
     fc_pwm: tuple[float, ...] | None = None
+    rig_read: tuple[tuple[bool, bool], ...] | None = None
 
 
 class SimLink(SimLinkBase):
@@ -286,6 +289,7 @@ class WingBoard:
         self.target_log: dict[str, list[tuple[float, float]]] = {w: [] for w in WINGS}
         self.delays: dict[str, tuple[float, float]] = {}  # wing -> (read, target) delay after clock()
         self.answers: dict[str, float | None] = {}  # wing -> what the next read answers instead (replays)
+        self.drawn: dict[str, bool] = {}  # wing -> whether such a read still took the sensor's reading
 
     def set_target(self, channel: int, pulse_us: float) -> None:
         wing = self.servo_of.get(channel)
@@ -308,6 +312,7 @@ class WingBoard:
         if wing is None:
             return None
         if self.answers.get(wing) is not None:  # a replayed answer: no answer (NaN) or someone else's
+            self.wings[wing].sensor.skip(int(self.drawn.get(wing, True)))  # the same noise sequence as the rig
             counts = self.answers[wing]
             return None if not math.isfinite(counts) else counts
         t = self.clock() + self.delays.get(wing, (0.0, 0.0))[0]
@@ -401,15 +406,21 @@ def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: Wi
         delays = sched.io_delays or ((0.0, 0.0, 0.0, 0.0),) * n
         answers = sched.answers or ((None,) * len(WINGS),) * n
         pwm = sched.fc_pwm or (math.nan,) * n
-        given = iter(sorted(((x, d, a, p) for x, d, a, p in zip(sched.cycle_times, delays, answers, pwm, strict=True)
-                             if x >= 0.0), key=lambda e: e[0]))
+        drawn = sched.rig_read or ((True,) * len(WINGS),) * n
+        rows_given = sorted(zip(sched.cycle_times, delays, answers, pwm, drawn, strict=True), key=lambda e: e[0])
+        for row in rows_given:  # reads before the scenario began still drew their sensor's noise
+            if row[0] < 0.0:
+                for w, took in zip(WINGS, row[4], strict=True):
+                    board.wings[w].sensor.skip(int(took))
+        given = iter(row for row in rows_given if row[0] >= 0.0)
     rows: list[tuple] = []
     while True:
         if given is not None:
-            t, d, a, p = next(given, (math.inf, (0.0, 0.0, 0.0, 0.0), (None,) * len(WINGS), math.nan))
+            t, d, a, p, took = next(given, (math.inf, (0.0,) * 4, (None,) * len(WINGS), math.nan, (True,) * 2))
             link.pwm_override = {cfg.wings["left"].source_channel: p} if math.isfinite(p) else None
             board.delays = {w: (max(0.0, d[2 * i]), max(0.0, d[2 * i], d[2 * i + 1])) for i, w in enumerate(WINGS)}
             board.answers = dict(zip(WINGS, a, strict=True))
+            board.drawn = dict(zip(WINGS, took, strict=True))
         else:
             t_tick = sched.tick_offset_s + k * period
             t_msg = link.next_arrival()

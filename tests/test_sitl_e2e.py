@@ -86,3 +86,72 @@ def test_effects_option_parses_names_and_parameters():
     for bad in ("warp=1", "delay", "delay=x", "delay=-1", "backlash=1:2"):
         with pytest.raises(UserError):
             parse_effects(bad)
+
+
+# ---------------------------------------------------------------------- the replay of what happened
+
+
+def test_join_reads_takes_the_j_th_read_for_the_j_th_row_however_late():
+    log_t = np.arange(10) * 0.01
+    counts = [100 + k for k in range(10)]
+    reads = [(5.0 + 0.01 * k + (0.3 if k >= 4 else 0.0), c, 0, 0, 0) for k, c in enumerate(counts)]  # 0.3 s late
+    logged = np.array(counts, dtype=float)
+    idx, _ = join_reads(log_t, logged, reads, lambda c: np.asarray(c, dtype=float))
+    assert idx.tolist() == list(range(10))
+    logged[6] = 103.0  # that cycle took a late answer to an earlier query: no read of its own
+    idx, _ = join_reads(log_t, logged, reads, lambda c: np.asarray(c, dtype=float))
+    assert idx.tolist() == [0, 1, 2, 3, 4, 5, -1, 7, 8, 9]
+
+
+def test_row_reads_give_the_rig_s_unanswered_reads_to_the_first_rows_of_each_gap():
+    from warpbridge.sitl.cmd_sitl import row_reads
+
+    # rows 1, 2 and 4 got no answer; the rig took 4 reads: row 1's (timed out) and row 4's
+    assert row_reads(np.array([0, -1, -1, 2, -1]), 4).tolist() == [0, 1, -1, 2, 3]
+    assert row_reads(np.array([0, -1, 2]), 3).tolist() == [0, 1, 2]  # as many reads as rows: one each
+    assert row_reads(np.array([-1, 0, -1]), 1).tolist() == [-1, 0, -1]
+
+
+def test_board_answers_and_fc_pwm_replay_what_the_bridge_got():
+    from warpbridge.sitl.cmd_sitl import board_answers, fc_pwm_of
+    from warpbridge.sitl.scenarios import Rig
+
+    logged = {"left": np.array([5.0, np.nan, 7.0]), "right": np.array([1.0, 2.0, 3.0])}
+    idx = {"left": np.array([0, -1, -1]), "right": np.array([0, 1, 2])}
+    ans = board_answers(logged, idx, lambda d: 100.0 + 30.0 * np.asarray(d))
+    assert ans[0] == (None, None) and ans[2] == (310.0, None)  # 7 deg: someone else's answer, 310 counts
+    assert np.isnan(ans[1][0]) and ans[1][1] is None  # no answer in time
+    rig = Rig()  # bias 6 deg, 12 deg at full aileron, PWM 1100 / 1500 / 1900
+    assert (rig.bias_deg, rig.max_warp_deg, rig.pwm_min, rig.pwm_trim, rig.pwm_max) == (6, 12, 1100, 1500, 1900)
+    sp = np.array([6.0, 12.0, 9.0, 3.0, 0.0, 9.0])
+    pwm = fc_pwm_of(sp, np.array([True] * 5 + [False]), rig)
+    assert pwm[:5] == (1500.0, 1900.0, 1700.0, 1300.0, 1100.0) and np.isnan(pwm[5])
+
+
+def test_a_replay_feeds_the_bridge_the_fc_pwm_and_the_answers_it_had():
+    from warpbridge.sitl.lockstep import Schedule
+
+    sc = make_scenario("random", 1.0, seed=0)
+    times = tuple(0.2 + 0.01 * k for k in range(50))
+    answers = tuple((None, None) if k < 25 else (float("nan"), None) for k in range(50))
+    sched = Schedule(cycle_times=times, fc_pwm=(1700.0,) * 50, answers=answers)
+    res, _ = run_lockstep(sc, schedule=sched, mode="ff+pi")
+    fly = res.flying
+    # the mix of 1700 us on the rig: left 6 + 0.5 * 6 = 9 deg, right (reversed) 6 * (1 - 0.5) = 3 deg
+    assert fly[-1] and np.allclose(res.setpoint["left"][fly], 9.0) and np.allclose(res.setpoint["right"][fly], 3.0)
+    late = res.t >= 0.2 + 0.01 * 25 - 1e-9
+    assert np.isfinite(res.measured["left"][~late]).all() and np.isnan(res.measured["left"][late]).all()
+    assert np.isnan(res.warp["left"][late]).all()  # no read of its own: left out of the RMS, as in real time
+    assert np.isfinite(res.measured["right"]).all()
+
+
+def test_a_replayed_sensor_draws_the_noise_of_the_reads_it_does_not_make():
+    from warpbridge.sitl.flex_sensor import FlexSensor, FlexSensorSpec
+
+    a, b = FlexSensor(FlexSensorSpec(), seed=3), FlexSensor(FlexSensorSpec(), seed=3)
+    run = [a.read(5.0) for _ in range(200)]
+    assert len(set(run)) > 2  # noisy
+    replay = [b.read(5.0) for _ in range(100)]
+    b.skip(50)
+    replay += [None] * 50 + [b.read(5.0) for _ in range(50)]
+    assert replay[:100] == run[:100] and replay[150:] == run[150:]
