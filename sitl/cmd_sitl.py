@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import difflib
 import json
 import logging
 import math
@@ -74,7 +75,7 @@ log = logging.getLogger(__name__)
 
 HOLD_S = 1.0  # neutral roll before the scenario: the bridge starts following the FC without a step
 STARTUP_MARGIN_S = 10.0  # roll file beyond the run
-STARTUP_TIMEOUT_S = 30.0  # for each child to come up
+STARTUP_TIMEOUT_S = 30.0  # CPU seconds (or seconds without any) for each child to come up
 MOCK_START_MAX_S = 10.0  # longest the mock autopilot's process may take from launch to its roll clock's start
 END_MARGIN_S = 0.2  # rig time flown beyond the scenario's stretch
 AGREE_TOLERANCE = 0.20
@@ -182,7 +183,9 @@ class VirtualRig(WingBoard):
     """The two simulated wings behind the Maestro emulator, on the wall clock (rig time, s).
 
     ``on_target``/``read_analog`` are the emulator's callbacks; like ``WingBoard`` each advances the
-    wings to now first and each sensor read is recorded with the wing's true warp at that instant."""
+    wings to now first and each sensor read is recorded with the wing's true warp at that instant.
+    Nothing else advances them, so the lock-step replay, which advances its wings at the same
+    instants, integrates them on the same sub-steps."""
 
     def __init__(self, rig: Rig, wings: dict[str, SimWing], clock=time.monotonic) -> None:
         self.t0 = clock()
@@ -198,9 +201,6 @@ class VirtualRig(WingBoard):
         counts = self.read_counts(channel)
         return None if counts is None else int(counts)  # None: a servo channel, the emulator answers its target
 
-    def tick(self) -> None:
-        """Keep the wings' time current between the bridge's calls."""
-        self.advance()
 
 
 def _tail(path: Path, n: int = 15) -> str:
@@ -238,46 +238,29 @@ def read_cycle_log(path: Path) -> dict[str, np.ndarray]:
 
 
 def join_reads(log_t: np.ndarray, logged_deg: np.ndarray, reads: list, deg_of_counts,
-               window_s: tuple[float, float] = (-0.002, 0.5)) -> tuple[np.ndarray, float]:
+               ) -> tuple[np.ndarray, float]:
     """Match each cycle-log row to the sensor read the bridge made in that cycle.
 
-    ``reads``: the rig's records (rig time, counts, ...) in order. The rig time of log time 0 is
-    the smallest read-minus-cycle delay over the first rows. The bridge reads each sensor once per
-    cycle and the board answers in order, so when there are as many reads as rows the j-th read is
-    the j-th row's; that is taken when the counts give exactly the logged warp on 90 % of the rows
-    (however late the board answered on a busy machine; the others took a late answer to an earlier
-    query for theirs, or none). Otherwise (the driver holds its queries back while a late answer is
-    due, or the run was cut short) each row takes the first unused
-    read in ``window_s`` around its time whose counts give exactly the logged warp. Returns the
-    index of the read per row (-1: none, e.g. a read the bridge timed out on) and that offset."""
+    ``reads``: the rig's records (rig time, counts, ...) in order. The bridge reads each sensor at
+    most once per cycle and the board answers in order, so rows and reads are aligned in order on
+    the warp each gives (the logged warp; the read's counts through the calibration, as the log
+    writes it), as a diff aligns two texts: a row without a warp (no answer in time) or with a
+    wrong one (a late answer to an earlier query) matches nothing, and a read nobody took (the
+    answer came too late) is skipped. However late the board answered on a busy machine, times play
+    no part. Returns the index of the read per row (-1: none) and the rig time of log time 0, the
+    smallest read-minus-cycle delay over the first matched rows."""
     n = len(log_t)
     idx = np.full(n, -1, dtype=np.int64)
     if not reads or n == 0:
         return idx, math.nan
     rec = np.asarray(reads, dtype=np.float64)
     rt, deg = rec[:, 0], np.asarray(deg_of_counts(rec[:, 1]), dtype=np.float64)
-    k = min(n, len(rt), 50)
-    offset = float(np.min(rt[:k] - log_t[:k]))
-    logged = np.asarray(logged_deg, dtype=np.float64)
-    if len(rt) == n:
-        have = np.isfinite(logged)
-        same = have & (np.abs(deg - logged) <= 1e-4 * np.maximum(1.0, np.abs(logged)))
-        if np.count_nonzero(same) >= 0.9 * np.count_nonzero(have):
-            idx[same] = np.flatnonzero(same)
-            return idx, offset
-    p = 0
-    for j in range(n):
-        if not math.isfinite(logged_deg[j]):
-            continue
-        lo, hi = log_t[j] + offset + window_s[0], log_t[j] + offset + window_s[1]
-        while p < len(rt) and rt[p] < lo:
-            p += 1
-        q = p
-        while q < len(rt) and rt[q] <= hi:
-            if abs(deg[q] - logged_deg[j]) <= 1e-4 * max(1.0, abs(logged_deg[j])):
-                idx[j], p = q, q + 1
-                break
-            q += 1
+    rows = [f"{v:.6g}" if math.isfinite(v) else object() for v in np.asarray(logged_deg, dtype=np.float64)]
+    seen = [f"{v:.6g}" for v in deg]
+    for a, b, size in difflib.SequenceMatcher(None, rows, seen, autojunk=False).get_matching_blocks():
+        idx[a:a + size] = np.arange(b, b + size)
+    ok = np.flatnonzero(idx >= 0)[:50]
+    offset = float(np.min(rt[idx[ok]] - log_t[ok])) if ok.size else math.nan
     return idx, offset
 
 
@@ -572,34 +555,55 @@ def _check_children(children, out: Path) -> None:
             raise UserError(f"the {name} exited with status {proc.returncode}; {out / logf}:\n{_tail(out / logf)}")
 
 
+def _cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system) a process has used so far, from /proc; None where there is none."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _wait_until(done, vrig: VirtualRig, children, out: Path, what: str) -> None:
-    """Keep the wings' time current until ``done()``; fail if a child dies or it takes too long."""
-    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    """Wait until ``done()``; fail if a child dies or gets nowhere.
+
+    On a busy machine a child's start-up (imports, compiled kernels) takes several times longer in
+    wall time but not in CPU time, so the children may use ``STARTUP_TIMEOUT_S`` s of CPU, or sit
+    that long without using any (blocked: hung), before this gives up (where /proc tells CPU time;
+    else after that long in wall time)."""
+    t0 = time.monotonic()
+    cpu = [_cpu_seconds(p.pid) for p, _, _ in children]
+    cpu0, last, last_change = cpu, cpu, t0
     while not done():
-        vrig.tick()
         _check_children(children, out)
-        if time.monotonic() > deadline:
+        now, cpu = time.monotonic(), [_cpu_seconds(p.pid) for p, _, _ in children]
+        if any(c is None for c in cpu + cpu0):
+            stuck = now - t0 > STARTUP_TIMEOUT_S
+        else:
+            last_change = now if cpu != last else last_change
+            stuck = sum(cpu) - sum(cpu0) > STARTUP_TIMEOUT_S or now - last_change > STARTUP_TIMEOUT_S
+        last = cpu
+        if stuck:
             logs = "\n".join(f"{out / f}:\n{_tail(out / f)}" for _, _, f in children)
-            raise UserError(f"gave up waiting {STARTUP_TIMEOUT_S:g} s for {what}\n{logs}")
-        time.sleep(0.005)
+            raise UserError(f"gave up waiting for {what} after {now - t0:.0f} s\n{logs}")
+        time.sleep(0.02)
 
 
 def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> None:
-    """Advance the wings for ``seconds`` of rig time from ``t0``, with progress; fail if a child dies."""
+    """Fly for ``seconds`` of rig time from ``t0``, with progress; fail if a child dies."""
     from tqdm import tqdm
 
     tty = sys.stderr.isatty()
     next_line = 5.0
     with tqdm(total=round(seconds, 1), unit="s", desc="sitl", leave=False, disable=not tty) as bar:
-        while (flown := vrig.now() - t0) < seconds:
-            vrig.tick()
+        while (flown := vrig.now() - t0) < seconds:  # the wings advance when the bridge reads or sets them
             bar.n = round(min(flown, seconds), 1)
             bar.refresh()
             if not tty and flown >= next_line:
                 print(f"sitl: {next_line:g} / {seconds:.0f} s", flush=True)
                 next_line += 5.0
             _check_children(children, out)
-            time.sleep(0.005)
+            time.sleep(0.02)
 
 
 # ------------------------------------------------------------------ entry point
