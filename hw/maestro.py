@@ -163,15 +163,16 @@ class Maestro(SerialDevice):
     def _on_open(self) -> None:
         self._owed = 0
 
-    def _query(self, command: int, data: bytes = b"") -> int | None:
+    def _query(self, command: int, data: bytes = b"", wait_late: bool = False) -> int | None:
         """Send a query and read its 2-byte little-endian answer; None on timeout.
 
         The protocol does not tag answers, so one that comes after its query timed out would be
-        taken for the next query's. So after a timeout no query is sent (None at once) until the
-        late answer has arrived and been dropped, or ``late_answer_s`` has passed without it
-        (a query the board never received); then whatever else is waiting is discarded."""
+        taken for the next query's. So after a timeout no query is sent (None at once; with
+        ``wait_late`` after waiting up to ``timeout`` for it) until the late answer has arrived and
+        been dropped, or ``late_answer_s`` has passed without it (a query the board never
+        received); then whatever else is waiting is discarded."""
         with self._lock:
-            if self._owed and not self._late_answer_gone():
+            if self._owed and not self._late_answer_gone(wait_late):
                 return None
             self._discard_input()
             self._write(self._frame(command, data))
@@ -182,11 +183,12 @@ class Maestro(SerialDevice):
                 return None
         return reply[0] | (reply[1] << 8)
 
-    def _late_answer_gone(self) -> bool:
-        """Drop what has arrived of a late answer (never waits); whether no more of it is expected."""
+    def _late_answer_gone(self, wait: bool) -> bool:
+        """Drop what has arrived of a late answer (waiting up to ``timeout`` for it with ``wait``);
+        whether no more of it is expected."""
         port = self._require_port()
         try:
-            waiting = port.in_waiting
+            waiting = self._owed if wait else port.in_waiting
         except PORT_ERRORS as exc:
             raise self._lost(exc) from exc
         if waiting:
@@ -213,7 +215,7 @@ class Maestro(SerialDevice):
 
     def poll_errors(self) -> int:
         """Board error bits (Get Errors clears them); ``NO_REPLY`` if the board is silent."""
-        value = self._query(GET_ERRORS)
+        value = self._query(GET_ERRORS, wait_late=True)  # once a second: worth a wait for a late answer
         bits = NO_REPLY if value is None else value
         if bits:
             log.warning("maestro: errors 0x%04X: %s", bits, ", ".join(error_names(bits)))

@@ -184,8 +184,9 @@ class VirtualRig(WingBoard):
 
     ``on_target``/``read_analog`` are the emulator's callbacks; like ``WingBoard`` each advances the
     wings to now first and each sensor read is recorded with the wing's true warp at that instant.
-    Nothing else advances them, so the lock-step replay, which advances its wings at the same
-    instants, integrates them on the same sub-steps."""
+    ``tick`` keeps them current in between, to the last sub-step grid point (``SimWing``
+    ``grid_origin``), so the lock-step replay, which advances its wings only at those instants,
+    integrates them on the same sub-steps."""
 
     def __init__(self, rig: Rig, wings: dict[str, SimWing], clock=time.monotonic) -> None:
         self.t0 = clock()
@@ -200,6 +201,12 @@ class VirtualRig(WingBoard):
     def read_analog(self, channel: int) -> int | None:
         counts = self.read_counts(channel)
         return None if counts is None else int(counts)  # None: a servo channel, the emulator answers its target
+
+    def tick(self) -> None:
+        """Keep the wings' time current between the bridge's calls (whose own work stays small)."""
+        for w in self.wings.values():
+            h, o = w.spec.substep_s, w.grid_origin or 0.0
+            w.advance(o + h * math.floor((self.clock() - o) / h))
 
 
 
@@ -269,7 +276,8 @@ def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], v
     """The bridge's cycle log joined with the wings' true warp at each of its sensor reads.
 
     Times stay the log's (seconds since the bridge started); also returns the rig time of log time 0
-    and each row's read per wing (``join_reads``)."""
+    and per wing the read whose answer each row got (-1: none, or a late answer to another query):
+    placed by the servo targets (``row_reads``) when there is one per row, else ``join_reads``."""
     t = cyc["t"]
     sensor = scenario.rig.sensor
     cols: dict[str, dict[str, np.ndarray]] = {"warp": {}, "u": {}, "airspeed": {}}
@@ -277,10 +285,16 @@ def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], v
     read_idx = {}
     for w in WINGS:
         idx, off = join_reads(t, cyc[f"{w}_warp"], vrig.reads[w], sensor.deg_of_counts)
+        rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
+        targets = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
+        if targets.size == t.size:  # placed by the targets: an answer is the row's own only if it matches
+            own = row_reads(idx, rec[:, 0], targets)
+            got = np.asarray(sensor.deg_of_counts(rec[np.maximum(own, 0), 1]), dtype=np.float64)
+            logged = cyc[f"{w}_warp"]
+            idx = np.where((own >= 0) & (np.abs(got - logged) <= 1e-4 * np.maximum(1.0, np.abs(logged))), own, -1)
         read_idx[w] = idx
         if w == "left":
             offset = off
-        rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
         ok = idx >= 0
         for name, c in (("warp", 2), ("u", 3), ("airspeed", 4)):
             col = np.full(t.size, np.nan)
@@ -342,20 +356,26 @@ def measured_schedule(t: np.ndarray, flying: np.ndarray, tau: float, loop_hz: fl
                     stream_start_s=start - lat - 0.25 * speriod, wake_on_message=wake)
 
 
-def row_reads(read_idx: np.ndarray, n_reads: int) -> np.ndarray:
-    """Each row's read in the rig, also for rows whose answer the bridge did not get: ``read_idx``
-    (the answered reads, ``join_reads``) plus, in each gap between two answered rows, the reads the
-    rig took there given in order to the gap's first rows (a read the bridge timed out on comes
-    first; the driver then holds its queries back). -1: the rig took no read for that row."""
+def row_reads(read_idx: np.ndarray, read_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
+    """Each row's read in the rig, also for rows whose answer the bridge did not get (-1: none).
+
+    The bridge reads a wing's sensor and then sets its servo once per cycle, and the rig handles
+    both in order: with one target per row, the read between the targets of rows j - 1 and j is
+    row j's. Otherwise ``read_idx`` (the answered reads, ``join_reads``) plus, in each gap between
+    two answered rows, the reads the rig took there given in order to the gap's first rows."""
+    n = len(read_idx)
+    if len(target_t) == n:
+        idx = np.full(n, -1, dtype=np.int64)
+        row = np.searchsorted(np.asarray(target_t, dtype=np.float64), np.asarray(read_t, dtype=np.float64))
+        ok = row < n
+        idx[row[ok]] = np.flatnonzero(ok)
+        return idx
     idx = np.array(read_idx, dtype=np.int64)
-    if idx.size == n_reads:
-        return np.arange(n_reads, dtype=np.int64)
     known = np.flatnonzero(idx >= 0)
-    bounds = [(-1, -1)] + [(int(j), int(idx[j])) for j in known] + [(idx.size, n_reads)]
+    bounds = [(-1, -1)] + [(int(j), int(idx[j])) for j in known] + [(n, len(read_t))]
     for (r0, q0), (r1, q1) in zip(bounds, bounds[1:], strict=False):
-        rows = range(r0 + 1, r1)
-        for row, q in zip(rows, range(q0 + 1, q1), strict=False):
-            idx[row] = q
+        for row_j, q in zip(range(r0 + 1, r1), range(q0 + 1, q1), strict=False):
+            idx[row_j] = q
     return idx
 
 
@@ -375,7 +395,7 @@ def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig, read_idx:
     for w in WINGS:
         rd = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)[:, 0]
         tg = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
-        idx = row_reads(read_idx[w], rd.size)
+        idx = row_reads(read_idx[w], rd, tg)
         ok = idx >= 0
         r = np.full(log_t.size, np.nan)
         r[ok] = rd[idx[ok]] - start[ok]
@@ -403,7 +423,12 @@ def fc_pwm_of(setpoint_left: np.ndarray, flying: np.ndarray, rig: Rig) -> tuple[
 def rig_reads(vrig: VirtualRig, read_idx: dict[str, np.ndarray]) -> tuple[tuple[bool, ...], ...]:
     """Per cycle-log row and wing: whether the rig's sensor took a reading in that cycle (``row_reads``),
     answered in time or not."""
-    return tuple(zip(*((row_reads(read_idx[w], len(vrig.reads[w])) >= 0).tolist() for w in WINGS), strict=True))
+    took = []
+    for w in WINGS:
+        rd = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)[:, 0]
+        tg = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
+        took.append((row_reads(read_idx[w], rd, tg) >= 0).tolist())
+    return tuple(zip(*took, strict=True))
 
 
 def board_answers(logged_deg: dict[str, np.ndarray], read_idx: dict[str, np.ndarray], counts_of_deg,
@@ -428,7 +453,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
                              hold_s=HOLD_S)
     roll_csv = scenario.write_csv(out / "roll.csv")
     fc_port, gcs_port = free_udp_port(), free_udp_port()
-    wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=args.seed)
+    wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=args.seed, grid=True)
     vrig = VirtualRig(rig, wings)
     emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
     mock = bridge = None
@@ -575,6 +600,7 @@ def _wait_until(done, vrig: VirtualRig, children, out: Path, what: str) -> None:
     cpu = [_cpu_seconds(p.pid) for p, _, _ in children]
     cpu0, last, last_change = cpu, cpu, t0
     while not done():
+        vrig.tick()
         _check_children(children, out)
         now, cpu = time.monotonic(), [_cpu_seconds(p.pid) for p, _, _ in children]
         if any(c is None for c in cpu + cpu0):
@@ -596,7 +622,8 @@ def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> No
     tty = sys.stderr.isatty()
     next_line = 5.0
     with tqdm(total=round(seconds, 1), unit="s", desc="sitl", leave=False, disable=not tty) as bar:
-        while (flown := vrig.now() - t0) < seconds:  # the wings advance when the bridge reads or sets them
+        while (flown := vrig.now() - t0) < seconds:
+            vrig.tick()
             bar.n = round(min(flown, seconds), 1)
             bar.refresh()
             if not tty and flown >= next_line:

@@ -128,10 +128,12 @@ class ShiftedFlow:
 
 
 def make_wings(scenario: Scenario, spec: WingSpec, w0_deg: float, seed: int = 0, record: bool = False,
-               flow_shift_s: float = 0.0) -> dict[str, SimWing]:
+               flow_shift_s: float = 0.0, t0: float = 0.0, grid: bool = False) -> dict[str, SimWing]:
     """Both simulated wings for a scenario: each in its own realisation of the scenario's flow.
 
-    ``flow_shift_s``: the flow's time at the wings' time 0 (to meet the same gusts as another run)."""
+    ``flow_shift_s``: the flow's time at the wings' time 0 (to meet the same gusts as another run);
+    ``t0``: the wings' start time; ``grid``: sub-steps on a grid anchored at the flow's time 0
+    (``SimWing`` ``grid_origin``), the same for a real-time run and its replay."""
     wings = {}
     for i, name in enumerate(WINGS):
         flow: Flow
@@ -143,7 +145,8 @@ def make_wings(scenario: Scenario, spec: WingSpec, w0_deg: float, seed: int = 0,
             flow = SteadyFlow(scenario.airspeed_ms)
         if flow_shift_s:
             flow = ShiftedFlow(flow, flow_shift_s)
-        wings[name] = SimWing(spec, flow, w0_deg=w0_deg, seed=seed + 101 * (i + 1), record=record)
+        wings[name] = SimWing(spec, flow, t0=t0, w0_deg=w0_deg, seed=seed + 101 * (i + 1), record=record,
+                              grid_origin=-flow_shift_s if grid else None)
     return wings
 
 
@@ -371,13 +374,15 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
     if cfg.loop.log is not None:
         cfg = replace(cfg, loop=replace(cfg.loop, log=None))
     wake = cfg.loop.wake_on_message if sched.wake_on_message is None else sched.wake_on_message
-    clock = SimClock(0.0)
+    # a replay starts where the real-time run's log does (the bridge's start, before the scenario's)
+    t0 = min(0.0, min(sched.cycle_times, default=0.0)) if sched.cycle_times is not None else 0.0
+    clock = SimClock(t0)
     fc = FcOutputs(scenario, cfg.link.servo_rate_hz, seed=seed + 7,
                    phase=(sched.msg_offset_s * cfg.link.servo_rate_hz) % 1.0, start_s=sched.stream_start_s)
     link = SimLink(scenario, fc, sched, clock)
     rig = scenario.rig
     wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=seed, record=record_wings,
-                       flow_shift_s=flow_shift_s)
+                       flow_shift_s=flow_shift_s, t0=t0, grid=sched.cycle_times is not None)
     board = WingBoard(rig, wings, clock)
     bridge = Bridge(cfg, servo=board, sensor=board, link=link, clock=clock)
     try:
@@ -407,12 +412,7 @@ def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: Wi
         answers = sched.answers or ((None,) * len(WINGS),) * n
         pwm = sched.fc_pwm or (math.nan,) * n
         drawn = sched.rig_read or ((True,) * len(WINGS),) * n
-        rows_given = sorted(zip(sched.cycle_times, delays, answers, pwm, drawn, strict=True), key=lambda e: e[0])
-        for row in rows_given:  # reads before the scenario began still drew their sensor's noise
-            if row[0] < 0.0:
-                for w, took in zip(WINGS, row[4], strict=True):
-                    board.wings[w].sensor.skip(int(took))
-        given = iter(row for row in rows_given if row[0] >= 0.0)
+        given = iter(sorted(zip(sched.cycle_times, delays, answers, pwm, drawn, strict=True), key=lambda e: e[0]))
     rows: list[tuple] = []
     while True:
         if given is not None:

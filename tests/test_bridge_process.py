@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import free_udp_port
+from helpers import free_udp_port, wait_while_working
 
 from warpbridge.bridge.controller import straight_line
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
@@ -234,7 +234,9 @@ class Rig:
         t0 = time.monotonic()
         self.proc = subprocess.Popen([*warpbridge_command(), "run", "--config", str(self.config_path), *extra],
                                      cwd=self.tmp, env=env, stdout=subprocess.DEVNULL, stderr=self._stderr)
-        assert wait_for(lambda: self.gcs.latest("WB_mode", t0) is not None or self.proc.poll() is not None, 20.0)
+        # start-up (imports, compiled kernels) takes longer on a busy machine: wait while the process works
+        assert wait_while_working(lambda: self.gcs.latest("WB_mode", t0) is not None or self.proc.poll() is not None,
+                                  self.proc.pid)
         assert self.proc.poll() is None, self.stderr()
 
     def stop(self) -> int:

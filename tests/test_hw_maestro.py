@@ -152,6 +152,9 @@ def test_a_late_answer_is_never_taken_for_the_next_query(board):
         assert answers_until(lambda: m.read_counts(6)) == 666.0
         assert m.read_counts(5) == 111.0
         assert m.poll_errors() == 0
+        slow.set()
+        assert m.read_counts(5) is None  # late again, and now the error poll comes before the answer:
+        assert m.poll_errors() == 0  # it waits for the late answer instead of reporting a silent board
 
 
 def test_an_answer_that_never_comes_is_given_up_on(board):

@@ -103,13 +103,19 @@ def test_join_reads_takes_the_j_th_read_for_the_j_th_row_however_late():
     assert idx.tolist() == [0, 1, 2, 3, 4, 5, -1, 7, 8, 9]
 
 
-def test_row_reads_give_the_rig_s_unanswered_reads_to_the_first_rows_of_each_gap():
+def test_row_reads_place_the_reads_the_bridge_got_no_answer_to():
     from warpbridge.sitl.cmd_sitl import row_reads
 
     # rows 1, 2 and 4 got no answer; the rig took 4 reads: row 1's (timed out) and row 4's
-    assert row_reads(np.array([0, -1, -1, 2, -1]), 4).tolist() == [0, 1, -1, 2, 3]
-    assert row_reads(np.array([0, -1, 2]), 3).tolist() == [0, 1, 2]  # as many reads as rows: one each
-    assert row_reads(np.array([-1, 0, -1]), 1).tolist() == [-1, 0, -1]
+    answered = np.array([0, -1, -1, 2, -1])
+    assert row_reads(answered, np.zeros(4), np.zeros(3)).tolist() == [0, 1, -1, 2, 3]
+    assert row_reads(np.array([-1, 0, -1]), np.zeros(1), np.zeros(2)).tolist() == [-1, 0, -1]
+    # with a target per row, the read between the targets of rows j - 1 and j is row j's, however late:
+    # row 1's read came after row 0's target (0.10 s) and before its own (0.50 s)
+    targets = np.array([0.10, 0.50, 0.52, 0.60, 0.70])
+    reads = np.array([0.05, 0.45, 0.59, 0.65])
+    assert row_reads(answered, reads, targets).tolist() == [0, 1, -1, 2, 3]
+    assert row_reads(answered, np.array([0.05, 0.51, 0.59, 0.65]), targets).tolist() == [0, -1, 1, 2, 3]
 
 
 def test_board_answers_and_fc_pwm_replay_what_the_bridge_got():
@@ -155,3 +161,22 @@ def test_a_replayed_sensor_draws_the_noise_of_the_reads_it_does_not_make():
     b.skip(50)
     replay += [None] * 50 + [b.read(5.0) for _ in range(50)]
     assert replay[:100] == run[:100] and replay[150:] == run[150:]
+
+
+def test_a_wing_on_a_sub_step_grid_integrates_the_same_however_often_it_is_advanced():
+    """The real-time rig keeps its wings current between the bridge's calls, its replay does not."""
+    from warpbridge.sitl.lockstep import make_wings
+    from warpbridge.sitl.wing import WingSpec
+
+    sc = make_scenario("random", 3.0, seed=0)
+    often, seldom = (make_wings(sc, WingSpec(), w0_deg=6.0, grid=True, flow_shift_s=0.0123)["left"]
+                     for _ in range(2))
+    rng = np.random.default_rng(0)
+    for t, pulse in zip(np.sort(rng.uniform(0.0, 2.0, 200)), rng.uniform(1200.0, 1600.0, 200), strict=True):
+        for g in np.arange(often.t, t, 0.0007):  # in between, at times of its own (to the grid point before)
+            often.advance(-0.0123 + 0.001 * np.floor((g + 0.0123) / 0.001))
+        for wing in (often, seldom):
+            wing.advance(t)
+            wing.set_pulse(pulse)
+    assert often.w_true == pytest.approx(seldom.w_true, abs=1e-12) and often.u_mm == pytest.approx(seldom.u_mm)
+    assert seldom.w_true != pytest.approx(6.0, abs=0.5)  # it moved
