@@ -287,7 +287,7 @@ def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], v
         idx, off = join_reads(t, cyc[f"{w}_warp"], vrig.reads[w], sensor.deg_of_counts)
         rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
         targets = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
-        if targets.size == t.size:  # placed by the targets: an answer is the row's own only if it matches
+        if 0 < targets.size <= t.size:  # placed by the targets: an answer is the row's own only if it matches
             own = row_reads(idx, rec[:, 0], targets)
             got = np.asarray(sensor.deg_of_counts(rec[np.maximum(own, 0), 1]), dtype=np.float64)
             logged = cyc[f"{w}_warp"]
@@ -360,14 +360,15 @@ def row_reads(read_idx: np.ndarray, read_t: np.ndarray, target_t: np.ndarray) ->
     """Each row's read in the rig, also for rows whose answer the bridge did not get (-1: none).
 
     The bridge reads a wing's sensor and then sets its servo once per cycle, and the rig handles
-    both in order: with one target per row, the read between the targets of rows j - 1 and j is
-    row j's. Otherwise ``read_idx`` (the answered reads, ``join_reads``) plus, in each gap between
+    both in order: the read between the targets of rows j - 1 and j is row j's (the rig may have
+    stopped before handling the last rows' bytes: the targets it handled are the first rows').
+    Without targets ``read_idx`` (the answered reads, ``join_reads``) plus, in each gap between
     two answered rows, the reads the rig took there given in order to the gap's first rows."""
     n = len(read_idx)
-    if len(target_t) == n:
+    if 0 < len(target_t) <= n:  # the rig stopped before it had handled the last cycles' bytes: a prefix
         idx = np.full(n, -1, dtype=np.int64)
         row = np.searchsorted(np.asarray(target_t, dtype=np.float64), np.asarray(read_t, dtype=np.float64))
-        ok = row < n
+        ok = row < len(target_t)
         idx[row[ok]] = np.flatnonzero(ok)
         return idx
     idx = np.array(read_idx, dtype=np.int64)
@@ -385,11 +386,10 @@ def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig, read_idx:
     after the cycle's start (s; (left read, left target, right read, right target)).
 
     The bridge reads each sensor and then sets each servo once per cycle, and the board handles them
-    in order: with as many reads (targets) as rows, the j-th is the j-th row's, answered or not.
-    Otherwise a row's read is the one ``row_reads`` gives it (the median delay where none: a read
-    the driver did not send) and its target the first after it. Delays are kept
-    however long: on a busy machine the board may take several cycles to answer, and the replay
-    must see that."""
+    in order: the j-th target is the j-th row's, and a row's read is the one ``row_reads`` places
+    before it (answered or not; the median delay where none: a read the driver did not send).
+    Delays are kept however long: on a busy machine the board may take several cycles to answer,
+    and the replay must see that."""
     cols = []
     start = log_t + rig_at_log0
     for w in WINGS:
@@ -400,8 +400,10 @@ def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig, read_idx:
         r = np.full(log_t.size, np.nan)
         r[ok] = rd[idx[ok]] - start[ok]
         r[~ok] = np.median(r[ok]) if ok.any() else 0.0
-        if tg.size == log_t.size:
-            g = tg - start
+        if 0 < tg.size <= log_t.size:  # the j-th target is the j-th row's (the last rows': never handled)
+            g = np.full(log_t.size, np.nan)
+            g[:tg.size] = tg - start[:tg.size]
+            g[tg.size:] = np.median(g[:tg.size])
         else:
             j = np.searchsorted(tg, start + r)
             g = np.full(log_t.size, np.nan)

@@ -9,6 +9,7 @@ the bridge writes go through pyserial exactly as to ``/dev/ttyACM0``. The helper
 
 from __future__ import annotations
 
+import math
 import os
 import random
 import re
@@ -34,6 +35,7 @@ PULSE_ZERO, MM_PER_US = 1200.0, 0.02
 COUNTS, DEG = (100.0, 1000.0), (0.0, 15.0)
 SENSOR_CH = {"left": 2, "right": 3}
 SERVO_CH = {"left": 0, "right": 1}
+LOOP_HZ = 100.0  # [loop] rate_hz of config_text
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -217,13 +219,22 @@ class Rig:
         with self._tlock:
             return [p for t, ch, p in self.targets if ch == channel and t >= since]
 
-    def settled_pulse(self, channel: int, hold: float = 0.6) -> float:
-        """The pulse written on ``channel`` at the end of a ``hold``-second wait."""
+    def run_for(self, seconds: float, channel: int = SERVO_CH["left"]) -> None:
+        """Let the bridge run ``seconds``: that long, and at least as many control cycles as it runs in
+        that time at 100 Hz (counted by its servo writes). On a busy machine the bridge's cycles come
+        late and the values under test settle over cycles, not over the test's clock."""
         t0 = time.monotonic()
-        time.sleep(hold)
-        got = self.pulses(channel, t0 + hold / 2)
-        assert got, f"no Set Target on channel {channel} for {hold / 2:.1f} s"
-        return got[-1]
+        time.sleep(seconds)
+        assert self.proc is not None
+        cycles = math.ceil(LOOP_HZ * seconds)
+        assert wait_while_working(lambda: len(self.pulses(channel, t0)) >= cycles or self.proc.poll() is not None,
+                                  self.proc.pid), f"{len(self.pulses(channel, t0))} of {cycles} cycles"
+
+    def settled_pulse(self, channel: int, hold: float = 0.6) -> float:
+        """The pulse written on ``channel`` at the end of a ``hold``-second run (``run_for``)."""
+        t0 = time.monotonic()
+        self.run_for(hold, channel)
+        return self.pulses(channel, t0)[-1]
 
     # ------------------------------------------------------------------ the process
 
@@ -370,21 +381,21 @@ def test_live_mode_and_gain_changes_over_mavlink_change_what_the_servo_gets(make
     rig.sensor = {SENSOR_CH["left"]: noisy(4.0), SENSOR_CH["right"]: noisy(1.0)}
     rig.start()
     gcs = rig.gcs
-    time.sleep(1.0)
+    rig.run_for(1.0)
     t0 = time.monotonic()
-    time.sleep(0.5)
+    rig.run_for(0.5)
     assert sum(gcs.values("L_pi", t0)) / len(gcs.values("L_pi", t0)) == pytest.approx(7.0, abs=0.3)  # kp e
 
     gcs.param_set("WB_KP", 2.0)
     assert wait_for(lambda: gcs.params.get("WB_KP") == pytest.approx(2.0), 5.0)
-    time.sleep(2.0)  # bumpless: the old command fades into the new law over ~0.5 s
+    rig.run_for(2.0)  # bumpless: the old command fades into the new law over ~0.5 s
     t1 = time.monotonic()
-    time.sleep(0.5)
+    rig.run_for(0.5)
     assert sum(gcs.values("L_pi", t1)) / len(gcs.values("L_pi", t1)) == pytest.approx(2.0, abs=0.2)
 
     gcs.param_set("WB_MODE", 0)  # open loop: the straight line, whatever the sensor says
     assert wait_for(lambda: gcs.has_text("WB mode open"), 5.0)
-    time.sleep(2.0)  # the transfer offset has decayed to < 0.03 mm by now
+    rig.run_for(2.0)  # the transfer offset has decayed to < 0.03 mm by now
     assert rig.settled_pulse(SERVO_CH["left"]) == pytest.approx(open_loop_pulse(5.0), abs=1.5)
     assert gcs.latest("WB_mode") == 0.0
 
@@ -419,7 +430,7 @@ def test_each_failsafe_triggers_and_recovers(make_rig):
     rig.sensor[SENSOR_CH["left"]] = lambda: 1020
     assert wait_for(lambda: gcs.has_text("WB left sensor reading 1020 out of range: ff only"), 3.0), gcs.texts
     t0 = time.monotonic()
-    time.sleep(2.5)
+    rig.run_for(2.5)
     pis = [abs(p) for p in gcs.values("L_pi", t0)]
     # feed-forward only: what was PI fades out smoothly (bumpless, 0.5 s) and nothing new is added
     assert pis[0] > 1.0 and pis[-1] < 0.03 * pis[0], pis
@@ -431,7 +442,7 @@ def test_each_failsafe_triggers_and_recovers(make_rig):
     rig.sensor[SENSOR_CH["right"]] = lambda: counts_for_deg(1.5)
     for a in (1300, 1100, 1300, 1100):  # right wing: setpoints 5 and 8 deg, command moves mm
         rig.aileron = a
-        time.sleep(0.3)
+        rig.run_for(0.3)
     assert wait_for(lambda: gcs.has_text("WB right sensor frozen: ff only"), 3.0), gcs.texts
     rig.sensor[SENSOR_CH["right"]] = noisy(1.5)
     assert wait_for(lambda: gcs.has_text("WB right sensor back"), 3.0)

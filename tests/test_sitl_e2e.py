@@ -108,14 +108,17 @@ def test_row_reads_place_the_reads_the_bridge_got_no_answer_to():
 
     # rows 1, 2 and 4 got no answer; the rig took 4 reads: row 1's (timed out) and row 4's
     answered = np.array([0, -1, -1, 2, -1])
-    assert row_reads(answered, np.zeros(4), np.zeros(3)).tolist() == [0, 1, -1, 2, 3]
-    assert row_reads(np.array([-1, 0, -1]), np.zeros(1), np.zeros(2)).tolist() == [-1, 0, -1]
+    no_targets = np.zeros(0)
+    assert row_reads(answered, np.zeros(4), no_targets).tolist() == [0, 1, -1, 2, 3]
+    assert row_reads(np.array([-1, 0, -1]), np.zeros(1), no_targets).tolist() == [-1, 0, -1]
     # with a target per row, the read between the targets of rows j - 1 and j is row j's, however late:
     # row 1's read came after row 0's target (0.10 s) and before its own (0.50 s)
     targets = np.array([0.10, 0.50, 0.52, 0.60, 0.70])
     reads = np.array([0.05, 0.45, 0.59, 0.65])
     assert row_reads(answered, reads, targets).tolist() == [0, 1, -1, 2, 3]
     assert row_reads(answered, np.array([0.05, 0.51, 0.59, 0.65]), targets).tolist() == [0, -1, 1, 2, 3]
+    # the rig stopped before handling the last row's bytes: its read and target never happened
+    assert row_reads(answered, reads[:3], targets[:4]).tolist() == [0, 1, -1, 2, -1]
 
 
 def test_board_answers_and_fc_pwm_replay_what_the_bridge_got():
