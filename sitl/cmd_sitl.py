@@ -79,6 +79,7 @@ STARTUP_TIMEOUT_S = 30.0  # CPU seconds (or seconds without any) for each child 
 MOCK_START_MAX_S = 10.0  # longest the mock autopilot's process may take from launch to its roll clock's start
 END_MARGIN_S = 0.2  # rig time flown beyond the scenario's stretch
 AGREE_TOLERANCE = 0.20
+EMULATED_BOARD_TIMEOUT_S = 0.5  # the bridge's read timeout on the Maestro emulator (a real board's: 0.02)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -474,7 +475,10 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     try:
         pty = emu.start()
         cfg_path = out / "warpbridge-sitl.toml"
-        cfg_path.write_text(toml.replace("maestro:PTY", f"maestro:{pty}"), encoding="utf-8")
+        # the emulated board answers once this process gets the CPU, on a busy machine far later than a
+        # real board's millisecond: the bridge waits for it (its lateness is in the cycle log, and replayed)
+        cfg_path.write_text(toml.replace("maestro:PTY", f"maestro:{pty},timeout={EMULATED_BOARD_TIMEOUT_S:g}"),
+                            encoding="utf-8")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         # the bridge first (listening, in failsafe), then the FC: its roll clock starts with its process
         print(f"sitl: starting the bridge (Maestro emulator on {pty}) ...", flush=True)

@@ -72,3 +72,21 @@ def wait_while_working(cond, pid: int, cpu_s: float = 20.0, idle_s: float = 20.0
             if cpu - cpu0 > cpu_s or now - last_change > idle_s:
                 return cond()
         time.sleep(step)
+
+
+def run_to_end(cmd: list[str], **kwargs):
+    """``subprocess.run(cmd, capture_output=True, text=True, **kwargs)`` without a wall-clock timeout:
+    the process may take as long as it keeps working (``wait_while_working``; a busy machine slows
+    its start-up), and is killed once it stalls. Returns the ``CompletedProcess``."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True, **kwargs)
+        if not wait_while_working(lambda: proc.poll() is not None, proc.pid, cpu_s=60.0):
+            proc.kill()
+            proc.wait()
+            raise AssertionError(f"{cmd} stalled or kept running; killed")
+        out.seek(0)
+        err.seek(0)
+        return subprocess.CompletedProcess(cmd, proc.returncode, out.read(), err.read())

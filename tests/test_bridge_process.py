@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import free_udp_port, wait_while_working
+from helpers import free_udp_port, run_to_end, wait_while_working
 
 from warpbridge.bridge.controller import straight_line
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
@@ -36,6 +36,7 @@ COUNTS, DEG = (100.0, 1000.0), (0.0, 15.0)
 SENSOR_CH = {"left": 2, "right": 3}
 SERVO_CH = {"left": 0, "right": 1}
 LOOP_HZ = 100.0  # [loop] rate_hz of config_text
+EMULATED_BOARD_TIMEOUT_S = 0.5  # how long the bridge waits for the Maestro emulator's answer
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -62,7 +63,9 @@ def warpbridge_command() -> list[str]:
 def config_text(fc_port: int, maestro: Path, *, mode: str = "ff+pi", kp: float = 7.0, ki: float = 1.0,
                 jitter_us: float = 2.0, servo_backend: str | None = None, sensor_backend: str = "maestro:",
                 failsafe_s: float = 0.3, frozen_s: float = 0.4) -> str:
-    servo_backend = servo_backend or f"maestro:{maestro}"
+    # the emulated board answers once this test process gets the CPU, which on a busy machine takes far
+    # longer than a real board's millisecond: the driver waits for it instead of running without a reading
+    servo_backend = servo_backend or f"maestro:{maestro},timeout={EMULATED_BOARD_TIMEOUT_S:g}"
     wings = []
     for name in ("left", "right"):
         wings.append(f"""
@@ -188,6 +191,7 @@ class Rig:
         self.tmp = tmp_path
         self.fc_port, self.gcs_port = free_udp_port(), free_udp_port()
         self.aileron = 1500.0  # FC output 1, us (0 = output disabled)
+        self.aileron_sampled = 0.0  # when the mock last took it for a message (monotonic)
         self.sensor: dict[int, Callable[[], float | None]] = {}
         self.targets: list[tuple[float, int, float]] = []  # (time, channel, pulse us) as written
         self._tlock = threading.Lock()
@@ -196,10 +200,14 @@ class Rig:
         self.config_path = tmp_path / "wb.toml"
         self.write_config(**config)
         self.mock = MockAutopilot(self.fc_port, self.gcs_port, autopilot="ardupilot", jitter_us=0,
-                                  roll_source=lambda t: {1: self.aileron, 2: 1500.0}).start()
+                                  roll_source=self._roll).start()
         self.gcs = Gcs(self.gcs_port)
         self.proc: subprocess.Popen | None = None
         self.stderr_path = tmp_path / "bridge.stderr"
+
+    def _roll(self, t: float) -> dict[int, float]:
+        self.aileron_sampled = time.monotonic()  # the mock is about to send this aileron
+        return {1: self.aileron, 2: 1500.0}
 
     def write_config(self, **config: Any) -> None:
         self.config_path.write_text(config_text(self.fc_port, self.tmp / "maestro", **config))
@@ -231,10 +239,14 @@ class Rig:
                                   self.proc.pid), f"{len(self.pulses(channel, t0))} of {cycles} cycles"
 
     def settled_pulse(self, channel: int, hold: float = 0.6) -> float:
-        """The pulse written on ``channel`` at the end of a ``hold``-second run (``run_for``)."""
+        """The pulse written on ``channel`` after the mock has sent the current aileron and the bridge
+        has then run ``hold`` seconds (``run_for``)."""
         t0 = time.monotonic()
+        assert self.proc is not None
+        assert wait_while_working(lambda: self.aileron_sampled > t0, self.proc.pid), "the mock sent nothing"
+        t1 = time.monotonic()
         self.run_for(hold, channel)
-        return self.pulses(channel, t0)[-1]
+        return self.pulses(channel, t1)[-1]
 
     # ------------------------------------------------------------------ the process
 
@@ -464,11 +476,11 @@ def test_each_failsafe_triggers_and_recovers(make_rig):
     assert rig.stop() == 0
 
 
-def run_check(rig: Rig, *, timeout: float = 30.0) -> subprocess.CompletedProcess:
+def run_check(rig: Rig) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
-    return subprocess.run([*warpbridge_command(), "run", "--config", str(rig.config_path), "--check"],
-                          cwd=rig.tmp, env=env, capture_output=True, text=True, timeout=timeout)
+    return run_to_end([*warpbridge_command(), "run", "--config", str(rig.config_path), "--check"],
+                      cwd=rig.tmp, env=env)
 
 
 def test_check_reports_every_part_and_fails_clearly(make_rig):
@@ -497,8 +509,7 @@ def test_config_errors_stop_the_process_with_one_line(tmp_path):
     cfg.write_text(config_text(free_udp_port(), tmp_path / "maestro").replace("kp = 7", "kp = -7", 1))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
-    r = subprocess.run([*warpbridge_command(), "run", "--config", str(cfg)], capture_output=True, text=True,
-                       env=env, timeout=30)
+    r = run_to_end([*warpbridge_command(), "run", "--config", str(cfg)], env=env)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "kp" in r.stderr and "Traceback" not in r.stderr
 

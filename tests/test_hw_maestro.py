@@ -341,3 +341,13 @@ def test_backoff_rejects_bad_settings():
 def test_pyserial_exceptions_are_oserrors():
     # fc_outputs relies on this to map a lost serial MAVLink link to DeviceError
     assert issubclass(serial.SerialException, OSError)
+
+
+def test_maestro_spec_takes_a_read_timeout(board):
+    path = board.emu.device_path
+    with hw.open_servo(f"maestro:{path},timeout=0.3") as m, hw.open_servo(f"maestro:{path},57600") as plain:
+        assert (m.timeout, m.baudrate) == (0.3, 115200) and plain.timeout == 0.02
+        assert hw.open_sensor(f"maestro:{path},timeout=0.3", shared_servo=m) is m  # the same port
+    for bad in ("timeout=x", "timeout=0", "timeout=20"):
+        with pytest.raises(ValueError, match="timeout"):
+            hw.open_servo(f"maestro:{path},{bad}")
