@@ -16,10 +16,12 @@ pinned to, as a camera process sharing the bridge's core), ``both`` (a busy loop
 bridge unpinned). This process (sender, emulator) is pinned to another core and, where permitted,
 runs at SCHED_FIFO 30, so that its timestamps are not the thing being delayed.
 
-Per variant and rate it prints p50 / p99 / max latency (ms), messages that never reached the servo,
-and from the bridge's cycle log over the measured window: missed ticks (periods of the 100 Hz loop
-with no tick: the timer skipped them) and late ticks (started more than 1 ms after their deadline),
-and the ratio of each p99 to the baseline's under the same load. Last, the pause a full garbage
+Per variant and rate it prints p50 / p99 / max latency (ms) of the messages whose pulse was written,
+how many were skipped (never written: a later message reached the bridge before it ran a cycle for
+this one, so it wrote the later one; the baseline writes every message), and from the bridge's
+cycle log over the measured window: missed ticks (periods of the 100 Hz loop with no tick: the
+timer skipped them) and late ticks (started more than 1 ms after their deadline), and the ratio of
+each p99 to the baseline's under the same load. Last, the pause a full garbage
 collection costs a process that imported the bridge, before and after ``gc.freeze``.
 """
 
@@ -300,7 +302,7 @@ def main() -> int:
     print(f"\nSERVO_OUTPUT_RAW -> Set Target on the pty, {args.seconds:g} s per rate; loop {LOOP_HZ:g} Hz; "
           f"late: tick > {1e3 * LATE_S:g} ms after its deadline; load average after: "
           f"{' '.join(open('/proc/loadavg').read().split()[:3])}")
-    print(f"{'load':<7}{'variant':<10}{'Hz':>5}{'msgs':>6}{'lost':>6}{'p50 ms':>9}{'p99 ms':>9}{'max ms':>9}"
+    print(f"{'load':<7}{'variant':<10}{'Hz':>5}{'msgs':>6}{'skip':>6}{'p50 ms':>9}{'p99 ms':>9}{'max ms':>9}"
           f"{'ticks':>7}{'missed':>7}{'late':>6}{'p99 x base':>11}")
     for load in loads:
         for rate in rates:
