@@ -2,11 +2,13 @@
 
 ``python benchmarks/bench_latency.py [--messages 10000] [--rate 400]`` sends SERVO_OUTPUT_RAW
 (plus a 1 Hz HEARTBEAT) from this process to UDP 127.0.0.1, with the aileron ramping so every
-message asks for a different pulse, and times when the matching Set Target (0x84) bytes arrive
+message asks for a different pulse (a pulse not written within 0.5 s is counted unmatched: the
+bridge had a later message first), and times when the matching Set Target (0x84) bytes arrive
 on a Maestro emulator's pty. The same stream goes, one after the other, to:
 
 - ``baseline``: a plain pymavlink recv -> Maestro write loop, no control (a separate process);
-- ``bridge``: ``warpbridge run`` (open mode, no sensor), waking on each message (the default);
+- ``bridge``: ``warpbridge run`` (open mode, no sensor), waking on each message (the default),
+  with ``[loop] realtime`` as ``--realtime`` says (default auto);
 - ``bridge-tick``: the same with ``wake_on_message = false``: the message waits for the 100 Hz tick.
 
 It prints p50/p99/max latency, CPU per message or control cycle (from the process's rusage), and
@@ -66,7 +68,8 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def config(port: int, maestro: str, wake: bool) -> str:
+def config(port: int, maestro: str, wake: bool, loop_extra: str = "", log_name: str | None = None) -> str:
+    """The bridge's TOML: open mode, no sensor, both wings on FC output 1; ``loop_extra``: more [loop] keys."""
     wing = """
 [wing.{name}]
 source_channel = 1
@@ -89,7 +92,8 @@ pwm_jitter_us = 0
 rate_hz = 100
 failsafe_timeout_s = 0.5
 wake_on_message = {"true" if wake else "false"}
-log = "{'bridge' if wake else 'bridge-tick'}-cycles.csv"
+log = "{log_name or ('bridge' if wake else 'bridge-tick')}-cycles.csv"
+{loop_extra}
 [telemetry]
 rate_hz = 10
 [params]
@@ -101,11 +105,13 @@ backend = "none"
 """ + wing.format(name="left", rev="false", ch=0) + wing.format(name="right", rev="true", ch=1)
 
 
+MATCH_S = 0.5  # a message's pulse is looked for this long after it was sent; the same pulse recurs 1 s later
+
+
 def aileron_sequence(n: int) -> np.ndarray:
-    """A triangle 1500 -> 1900 -> 1500 us in 2 us steps: each message a new pulse on the left wing."""
-    up = np.arange(1500, 1900, 2)
-    tri = np.concatenate([up, up[::-1] + 2])
-    return np.resize(tri, n)
+    """A sawtooth 1501 -> 1900 us in 1 us steps, again and again: each message a new pulse on the left
+    wing (0.5 us apart, above the Maestro's 0.25 us), the same one again only 400 messages later."""
+    return 1501 + np.arange(n) % 400
 
 
 def expected_pulse(aileron: float, kind: str) -> float:
@@ -118,7 +124,7 @@ def expected_pulse(aileron: float, kind: str) -> float:
     return round(min(2000, max(1000, p)) * 4) / 4
 
 
-def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
+def run(kind: str, n: int, rate: float, workdir: Path, realtime: str = "auto") -> dict:
     arrivals: list[tuple[float, float]] = []
     lock = threading.Lock()
 
@@ -135,7 +141,7 @@ def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
         cmd = [sys.executable, "-c", BASELINE, str(port), path]
     else:
         cfg = workdir / f"{kind}.toml"
-        cfg.write_text(config(port, path, wake=(kind == "bridge")))
+        cfg.write_text(config(port, path, wake=(kind == "bridge"), loop_extra=f'realtime = "{realtime}"'))
         cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config", str(cfg)]
     proc = subprocess.Popen(cmd, cwd=workdir, env=env, stderr=subprocess.PIPE, text=True)
     fc = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
@@ -189,8 +195,10 @@ def run(kind: str, n: int, rate: float, workdir: Path) -> dict:
         want = expected_pulse(seq[k], kind)
         while j < len(arr) and arr[j][0] < sent[k]:
             j += 1
-        for t, p in arr[j:j + 50]:
-            if t >= sent[k] and abs(p - want) < 0.13:
+        for t, p in arr[j:]:
+            if t > sent[k] + MATCH_S:
+                break  # never written: the bridge had a later message before it ran a cycle for this one
+            if abs(p - want) < 0.13:
                 lat.append(t - sent[k])
                 break
     return {"lat": np.array(lat), "matched": len(lat), "n": n, "cycles": cycles, "cpu": cpu, "window": window,
@@ -218,17 +226,20 @@ def main() -> int:
     ap.add_argument("--messages", type=int, default=10000)
     ap.add_argument("--rate", type=float, default=400.0)
     ap.add_argument("--only", choices=["baseline", "bridge", "bridge-tick"], action="append")
+    ap.add_argument("--realtime", choices=["auto", "off"], default="auto",
+                    help="the bridge's [loop] realtime (auto: SCHED_FIFO etc. where permitted)")
     args = ap.parse_args()
     kinds = args.only or ["baseline", "bridge", "bridge-tick"]
     rows = {}
     with tempfile.TemporaryDirectory() as d:
         for kind in kinds:
             n = args.messages if kind != "bridge-tick" else min(args.messages, 4000)
-            r = run(kind, n, args.rate, Path(d))
+            r = run(kind, n, args.rate, Path(d), args.realtime)
             rows[kind] = r
             if r["matched"] < 0.9 * r["n"]:
                 print(f"{kind}: only {r['matched']}/{r['n']} messages matched; stderr tail:\n{r['err'][-800:]}")
-    print(f"\nSERVO_OUTPUT_RAW at {args.rate:g} Hz on loopback UDP -> Maestro Set Target on a pty")
+    print(f"\nSERVO_OUTPUT_RAW at {args.rate:g} Hz on loopback UDP -> Maestro Set Target on a pty "
+          f"(bridge [loop] realtime = {args.realtime})")
     print(f"{'variant':<12} {'msgs':>6} {'matched':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
           f"{'cycles':>7} {'CPU us/cycle':>13} {'CPU %':>6} {'p50 x':>6} {'p99 x':>6}")
     base = rows.get("baseline")

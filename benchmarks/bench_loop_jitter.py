@@ -5,7 +5,8 @@
 - ``sleep``: ``time.sleep(period)`` after each iteration (the naive loop: it drifts);
 - ``timer``: ``bridge.loop_timer.LoopTimer`` with no work (absolute deadlines);
 - ``bridge``: ``run_bridge`` with the ``loop:`` servo backend, fed 50 Hz SERVO_OUTPUT_RAW by the mock
-  autopilot in a separate process, ``wake_on_message = false`` so every cycle is a timer tick.
+  autopilot in a separate process, ``wake_on_message = false`` so every cycle is a timer tick;
+- ``bridge rt``: the same as ``warpbridge run`` with ``[loop] realtime = "auto"`` (``bridge.realtime``).
 
 Periods come from the tick start times (the bridge's from its cycle log). It prints the median
 period, p99 and max of |period - 10 ms|, and the ratio of each p99 to the timer baseline's.
@@ -58,7 +59,9 @@ def timer(seconds: float) -> np.ndarray:
     return np.diff(ts)
 
 
-def bridge(seconds: float, workdir: Path) -> np.ndarray:
+def bridge(seconds: float, workdir: Path, realtime: bool = False) -> np.ndarray:
+    """The bridge's tick periods: in this process (``run_bridge``, ordinary scheduling), or with
+    ``realtime`` as ``warpbridge run`` with ``[loop] realtime = "auto"`` (SCHED_FIFO etc. where permitted)."""
     port = free_udp_port()
     cfg = workdir / "wb.toml"
     wing = """
@@ -76,6 +79,7 @@ servo_rate_hz = 50
 rate_hz = {RATE:g}
 wake_on_message = false
 log = "cycles.csv"
+realtime = "{'auto' if realtime else 'off'}"
 [params]
 file = "params.json"
 [servo]
@@ -84,9 +88,15 @@ backend = "loop:"
     mock = subprocess.Popen([sys.executable, "-m", "warpbridge.sitl.mock_autopilot", "--fc-port", str(port),
                              "--duration", str(seconds + 5)], cwd=REPO)
     try:
-        stop = threading.Event()
-        threading.Timer(seconds, stop.set).start()
-        run_bridge(load_config(cfg), stop_event=stop)
+        if realtime:
+            out = subprocess.run([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config", str(cfg),
+                                  "--duration", str(seconds)], cwd=workdir, capture_output=True, text=True)
+            print("  bridge rt: " + "; ".join(ln.split("real time: ", 1)[1] for ln in out.stderr.splitlines()
+                                               if "real time: " in ln))
+        else:
+            stop = threading.Event()
+            threading.Timer(seconds, stop.set).start()
+            run_bridge(load_config(cfg), stop_event=stop)
     finally:
         mock.terminate()
         mock.wait(5)
@@ -100,15 +110,16 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
-        runs = {"sleep": naive(args.seconds), "timer": timer(args.seconds), "bridge": bridge(args.seconds, Path(d))}
+        runs = {"sleep": naive(args.seconds), "timer": timer(args.seconds), "bridge": bridge(args.seconds, Path(d)),
+                "bridge rt": bridge(args.seconds, Path(d), realtime=True)}
     period = 1.0 / RATE
     base99 = np.percentile(np.abs(runs["timer"] - period), 99)
     print(f"\nloop period at {RATE:g} Hz over {args.seconds:g} s")
-    print(f"{'loop':<8} {'ticks':>6} {'median ms':>10} {'p50 |dev| ms':>13} {'p99 |dev| ms':>13} {'max ms':>8}"
+    print(f"{'loop':<10} {'ticks':>6} {'median ms':>10} {'p50 |dev| ms':>13} {'p99 |dev| ms':>13} {'max ms':>8}"
           f" {'p99 x timer':>12}")
     for name, p in runs.items():
         dev = np.abs(p - period)
-        print(f"{name:<8} {p.size:>6} {1e3 * np.median(p):>10.3f} {1e3 * np.median(dev):>13.3f} "
+        print(f"{name:<10} {p.size:>6} {1e3 * np.median(p):>10.3f} {1e3 * np.median(dev):>13.3f} "
               f"{1e3 * np.percentile(dev, 99):>13.3f} {1e3 * dev.max():>8.2f} {np.percentile(dev, 99) / base99:>12.1f}")
     return 0
 

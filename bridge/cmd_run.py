@@ -155,6 +155,9 @@ def main(args: argparse.Namespace) -> int:
         stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)
+    from warpbridge.bridge import realtime
+
+    realtime.apply(config.loop)  # priority, affinity, locked memory, gc frozen: as far as permitted
     try:
         result = run_bridge(config, stop_event=stop, duration=args.duration, opened_servo=opened)
     except KeyboardInterrupt:

@@ -42,6 +42,10 @@ class LoopConfig:
     sensor_frozen_s: float = 1.0  # identical raw reading this long while the command moves -> sensor bad
     log: Path | None = None  # cycle log CSV; may contain {time}; None = no log
     wake_on_message: bool = True  # run a cycle as soon as the FC's message arrives (plus the fixed ticks)
+    realtime: str = "auto"  # "auto": the settings below as far as permitted (bridge.realtime); "off": none
+    cpu: int | None = None  # pin the process to this core; None = wherever the scheduler puts it
+    priority: int = 20  # SCHED_FIFO priority of the loop's thread (1-99); 0 = ordinary scheduling at `nice`
+    nice: int = -10  # niceness of the loop's thread when SCHED_FIFO is off or refused (-20..19)
 
 
 @dataclass(frozen=True)
@@ -310,6 +314,10 @@ def parse_config(data: dict, base: Path, origin: str = "config") -> Config:
         sensor_frozen_s=loop.num("sensor_frozen_s", 1.0, lo=0.05, hi=60.0),
         log=_path(loop, "log", base, None),
         wake_on_message=loop.flag("wake_on_message", True),
+        realtime=loop.text("realtime", "auto", choices=("auto", "off")),
+        cpu=loop.num("cpu", None, lo=0, hi=1023, integer=True),
+        priority=loop.num("priority", 20, lo=0, hi=99, integer=True),
+        nice=loop.num("nice", -10, lo=-20, hi=19, integer=True),
     )
     loop.done()
 

@@ -57,7 +57,7 @@ class CycleLog:
               wings: Mapping[str, Mapping[str, float | None]]) -> None:
         if self._file is None:
             return
-        cells = [f"{t:.4f}", mode.replace(",", ";"), _fmt(airspeed)]
+        cells = [f"{t:.6f}", mode.replace(",", ";"), _fmt(airspeed)]  # us: a replay runs the cycles then
         for w in WINGS:
             vals = wings.get(w, {})
             cells.extend(_fmt(vals.get(f)) for f in WING_FIELDS)

@@ -4,7 +4,8 @@ Backends are chosen by a string, like pyserial URLs (the interfaces are in ``hw.
 
 =================================  ===================================================
 ``maestro:<url or device>[,baud]``  Pololu Maestro (``hw.maestro``); any pyserial URL,
-                                    e.g. ``maestro:spy:///dev/ttyACM0`` to watch bytes
+                                    e.g. ``maestro:spy:///dev/ttyACM0`` to watch bytes;
+                                    ``,timeout=S``: wait up to S s for an answer (0.02)
 ``line:<url or device>[,baud]``     sensor board printing lines of counts (``hw.line_sensor``)
 ``fc:`` / ``fc:ardupilot|px4``      the FC's spare outputs over MAVLink (``hw.fc_outputs``)
 ``loop:``                           in memory, for tests (``hw.loop``)
@@ -20,6 +21,22 @@ from warpbridge.hw.base import NullSensor, ServoOutput, WarpSensor, parse_serial
 from warpbridge.hw.errors import DeviceError
 
 __all__ = ["DeviceError", "ServoOutput", "WarpSensor", "open_sensor", "open_servo"]
+
+
+def _maestro(rest: str, default_baud: int) -> tuple[str, int, dict[str, float]]:
+    """``<url or device>[,baud][,timeout=S]`` -> (url, baud, Maestro options)."""
+    head, sep, tail = rest.rpartition(",")
+    options: dict[str, float] = {}
+    if sep and tail.strip().startswith("timeout="):
+        try:
+            options["timeout"] = float(tail.strip()[len("timeout="):])
+        except ValueError:
+            raise ValueError(f"bad timeout in {rest!r}: expected timeout=<seconds>") from None
+        if not 0 < options["timeout"] <= 10:
+            raise ValueError(f"timeout in {rest!r} must be in (0, 10] s")
+        rest = head
+    url, baud = parse_serial_spec(rest, default_baud)
+    return url, baud, options
 
 
 def _split(spec: str) -> tuple[str, str]:
@@ -48,8 +65,8 @@ def open_servo(
     if kind == "maestro":
         from warpbridge.hw.maestro import DEFAULT_BAUD, Maestro
 
-        url, baud = parse_serial_spec(rest, DEFAULT_BAUD)
-        return Maestro(url, baud, limits=limits, **options)
+        url, baud, extra = _maestro(rest, DEFAULT_BAUD)
+        return Maestro(url, baud, limits=limits, **{**extra, **options})
     if kind == "fc":
         from warpbridge.hw.fc_outputs import AUTOPILOTS, FcOutputs
 
@@ -82,13 +99,13 @@ def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpS
     if kind == "maestro":
         from warpbridge.hw.maestro import DEFAULT_BAUD, Maestro
 
-        same_port = not rest.strip() or parse_serial_spec(rest, 0)[0] == getattr(shared_servo, "url", None)
+        same_port = not rest.strip() or _maestro(rest, 0)[0] == getattr(shared_servo, "url", None)
         if isinstance(shared_servo, Maestro) and same_port:
             return shared_servo
         if not rest.strip():
             raise ValueError("sensor spec 'maestro:' without a device needs the servo backend to be a Maestro")
-        url, baud = parse_serial_spec(rest, DEFAULT_BAUD)
-        return Maestro(url, baud, **options)
+        url, baud, extra = _maestro(rest, DEFAULT_BAUD)
+        return Maestro(url, baud, **{**extra, **options})
     if kind == "line":
         from warpbridge.hw.line_sensor import DEFAULT_BAUD, LineSensor
 

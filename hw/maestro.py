@@ -22,8 +22,10 @@ Port" (or "UART, detect baud rate" on TTL), the tendon channels as Servo, the fl
 sensors as Input (analog only on channels 0-11 of a Mini Maestro).
 
 Every pulse is clamped to the channel's safe range (``limits``) before it is written.
-Reads wait at most ``timeout`` (default 20 ms) and give None when the board is silent;
-writes give up after 0.1 s.
+Reads wait at most ``timeout`` (default 20 ms) and give None when the board is silent; after
+that, queries give None at once (nothing is sent) until the late answer has come and been
+dropped, or for at most ``late_answer_s`` (0.25 s), so that a late answer is never taken for
+another query's (a wrong flex-sensor reading would kick the PI trim); writes give up after 0.1 s.
 A lost port (USB unplugged) raises ``DeviceError``; the caller retries ``reopen()``
 with back-off (``hw.base.Backoff``).
 """
@@ -31,8 +33,9 @@ with back-off (``hw.base.Backoff``).
 from __future__ import annotations
 
 import logging
+import time
 
-from warpbridge.hw.base import SerialDevice, check_pulse
+from warpbridge.hw.base import PORT_ERRORS, SerialDevice, check_pulse
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +59,7 @@ ERROR_BITS: dict[int, str] = {
     7: "script call stack error",
     8: "script program counter error",
 }
+LATE_ANSWER_S = 0.25  # an answer this late after its query timed out is taken as never coming
 NO_REPLY = 1 << 16
 """Not a board bit: set by ``poll_errors`` when the board did not answer Get Errors."""
 
@@ -98,6 +102,7 @@ class Maestro(SerialDevice):
         limits: dict[int, tuple[float, float]] | None = None,
         default_limits: tuple[float, float] = DEFAULT_LIMITS_US,
         device_number: int | None = None,
+        late_answer_s: float = LATE_ANSWER_S,
     ) -> None:
         if device_number is not None and not 0 <= device_number <= 127:
             raise ValueError(f"Maestro device number must be 0..127, got {device_number}")
@@ -105,6 +110,9 @@ class Maestro(SerialDevice):
         self._check_limits(-1, default_limits)
         self.default_limits = (float(default_limits[0]), float(default_limits[1]))
         self.limits: dict[int, tuple[float, float]] = {}
+        self.late_answer_s = float(late_answer_s)
+        self._owed = 0  # bytes of an answer that timed out and may still arrive ...
+        self._owed_until = 0.0  # ... until then
         for ch, lim in (limits or {}).items():
             self.set_limits(ch, *lim)
         super().__init__(url, baudrate, timeout=timeout)
@@ -152,16 +160,43 @@ class Maestro(SerialDevice):
         with self._lock:
             self._write(self._frame(SET_TARGET, bytes([channel, 0, 0])))
 
-    def _query(self, command: int, data: bytes = b"") -> int | None:
-        """Send a query and read its 2-byte little-endian answer; None on timeout."""
+    def _on_open(self) -> None:
+        self._owed = 0
+
+    def _query(self, command: int, data: bytes = b"", wait_late: bool = False) -> int | None:
+        """Send a query and read its 2-byte little-endian answer; None on timeout.
+
+        The protocol does not tag answers, so one that comes after its query timed out would be
+        taken for the next query's. So after a timeout no query is sent (None at once; with
+        ``wait_late`` after waiting up to ``timeout`` for it) until the late answer has arrived and
+        been dropped, or ``late_answer_s`` has passed without it (a query the board never
+        received); then whatever else is waiting is discarded."""
         with self._lock:
-            self._discard_input()  # a late answer to an earlier query must not be taken for this one
+            if self._owed and not self._late_answer_gone(wait_late):
+                return None
+            self._discard_input()
             self._write(self._frame(command, data))
             reply = self._read(2)
-        if len(reply) != 2:
-            log.debug("maestro: no answer to 0x%02X within %.3f s", command, self.timeout)
-            return None
+            if len(reply) != 2:
+                self._owed, self._owed_until = 2 - len(reply), time.monotonic() + self.late_answer_s
+                log.debug("maestro: no answer to 0x%02X within %.3f s", command, self.timeout)
+                return None
         return reply[0] | (reply[1] << 8)
+
+    def _late_answer_gone(self, wait: bool) -> bool:
+        """Drop what has arrived of a late answer (waiting up to ``timeout`` for it with ``wait``);
+        whether no more of it is expected."""
+        port = self._require_port()
+        try:
+            waiting = self._owed if wait else port.in_waiting
+        except PORT_ERRORS as exc:
+            raise self._lost(exc) from exc
+        if waiting:
+            self._owed -= len(self._read(min(waiting, self._owed)))
+        if self._owed and time.monotonic() < self._owed_until:
+            return False
+        self._owed = 0
+        return True
 
     def get_position(self, channel: int) -> int | None:
         """Raw Get Position value: quarter-us on a servo channel, 0..1023 on an input."""
@@ -180,7 +215,7 @@ class Maestro(SerialDevice):
 
     def poll_errors(self) -> int:
         """Board error bits (Get Errors clears them); ``NO_REPLY`` if the board is silent."""
-        value = self._query(GET_ERRORS)
+        value = self._query(GET_ERRORS, wait_late=True)  # once a second: worth a wait for a late answer
         bits = NO_REPLY if value is None else value
         if bits:
             log.warning("maestro: errors 0x%04X: %s", bits, ", ".join(error_names(bits)))

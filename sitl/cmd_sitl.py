@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import difflib
 import json
 import logging
 import math
@@ -77,10 +78,11 @@ log = logging.getLogger(__name__)
 
 HOLD_S = 1.0  # neutral roll before the scenario: the bridge starts following the FC without a step
 STARTUP_MARGIN_S = 10.0  # roll file beyond the run
-STARTUP_TIMEOUT_S = 30.0  # for each child to come up
+STARTUP_TIMEOUT_S = 30.0  # CPU seconds (or seconds without any) for each child to come up
 MOCK_START_MAX_S = 10.0  # longest the mock autopilot's process may take from launch to its roll clock's start
 END_MARGIN_S = 0.2  # rig time flown beyond the scenario's stretch
 AGREE_TOLERANCE = 0.20
+EMULATED_BOARD_TIMEOUT_S = 0.5  # the bridge's read timeout on the Maestro emulator (a real board's: 0.02)
 COARSE_MATCH_S = 30.0  # log stretch the coarse search of the scenario offset looks at
 
 
@@ -252,7 +254,10 @@ class VirtualRig(WingBoard):
     """The two simulated wings behind the Maestro emulator, on the wall clock (rig time, s).
 
     ``on_target``/``read_analog`` are the emulator's callbacks; like ``WingBoard`` each advances the
-    wings to now first and each sensor read is recorded with the wing's true warp at that instant."""
+    wings to now first and each sensor read is recorded with the wing's true warp at that instant.
+    ``tick`` keeps them current in between, to the last sub-step grid point (``SimWing``
+    ``grid_origin``), so the lock-step replay, which advances its wings only at those instants,
+    integrates them on the same sub-steps."""
 
     def __init__(self, rig: Rig, wings: dict[str, SimWing], clock=time.monotonic) -> None:
         self.t0 = clock()
@@ -269,8 +274,11 @@ class VirtualRig(WingBoard):
         return None if counts is None else int(counts)  # None: a servo channel, the emulator answers its target
 
     def tick(self) -> None:
-        """Keep the wings' time current between the bridge's calls."""
-        self.advance()
+        """Keep the wings' time current between the bridge's calls (whose own work stays small)."""
+        for w in self.wings.values():
+            h, o = w.spec.substep_s, w.grid_origin or 0.0
+            w.advance(o + h * math.floor((self.clock() - o) / h))
+
 
 
 def _tail(path: Path, n: int = 15) -> str:
@@ -308,51 +316,56 @@ def read_cycle_log(path: Path) -> dict[str, np.ndarray]:
 
 
 def join_reads(log_t: np.ndarray, logged_deg: np.ndarray, reads: list, deg_of_counts,
-               window_s: tuple[float, float] = (-0.002, 0.1)) -> tuple[np.ndarray, float]:
+               ) -> tuple[np.ndarray, float]:
     """Match each cycle-log row to the sensor read the bridge made in that cycle.
 
-    ``reads``: the rig's records (rig time, counts, ...) in order. The rig time of log time 0 is
-    the smallest read-minus-cycle delay over the first rows; then each row takes the first unused
-    read in ``window_s`` around its time whose counts give exactly the logged warp. Returns the
-    index of the read per row (-1: none, e.g. a read the bridge timed out on) and that offset."""
+    ``reads``: the rig's records (rig time, counts, ...) in order. The bridge reads each sensor at
+    most once per cycle and the board answers in order, so rows and reads are aligned in order on
+    the warp each gives (the logged warp; the read's counts through the calibration, as the log
+    writes it), as a diff aligns two texts: a row without a warp (no answer in time) or with a
+    wrong one (a late answer to an earlier query) matches nothing, and a read nobody took (the
+    answer came too late) is skipped. However late the board answered on a busy machine, times play
+    no part. Returns the index of the read per row (-1: none) and the rig time of log time 0, the
+    smallest read-minus-cycle delay over the first matched rows."""
     n = len(log_t)
     idx = np.full(n, -1, dtype=np.int64)
     if not reads or n == 0:
         return idx, math.nan
     rec = np.asarray(reads, dtype=np.float64)
     rt, deg = rec[:, 0], np.asarray(deg_of_counts(rec[:, 1]), dtype=np.float64)
-    k = min(n, len(rt), 50)
-    offset = float(np.min(rt[:k] - log_t[:k]))
-    p = 0
-    for j in range(n):
-        if not math.isfinite(logged_deg[j]):
-            continue
-        lo, hi = log_t[j] + offset + window_s[0], log_t[j] + offset + window_s[1]
-        while p < len(rt) and rt[p] < lo:
-            p += 1
-        q = p
-        while q < len(rt) and rt[q] <= hi:
-            if abs(deg[q] - logged_deg[j]) <= 1e-4 * max(1.0, abs(logged_deg[j])):
-                idx[j], p = q, q + 1
-                break
-            q += 1
+    rows = [f"{v:.6g}" if math.isfinite(v) else object() for v in np.asarray(logged_deg, dtype=np.float64)]
+    seen = [f"{v:.6g}" for v in deg]
+    for a, b, size in difflib.SequenceMatcher(None, rows, seen, autojunk=False).get_matching_blocks():
+        idx[a:a + size] = np.arange(b, b + size)
+    ok = np.flatnonzero(idx >= 0)[:50]
+    offset = float(np.min(rt[idx[ok]] - log_t[ok])) if ok.size else math.nan
     return idx, offset
 
 
 def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], vrig: VirtualRig,
-                    ) -> tuple[RunResult, float]:
+                    ) -> tuple[RunResult, float, dict[str, np.ndarray]]:
     """The bridge's cycle log joined with the wings' true warp at each of its sensor reads.
 
-    Times stay the log's (seconds since the bridge started); also returns the rig time of log time 0."""
+    Times stay the log's (seconds since the bridge started); also returns the rig time of log time 0
+    and per wing the read whose answer each row got (-1: none, or a late answer to another query):
+    placed by the servo targets (``row_reads``) when there is one per row, else ``join_reads``."""
     t = cyc["t"]
     sensor = scenario.rig.sensor
     cols: dict[str, dict[str, np.ndarray]] = {"warp": {}, "u": {}, "airspeed": {}}
     offset = math.nan
+    read_idx = {}
     for w in WINGS:
         idx, off = join_reads(t, cyc[f"{w}_warp"], vrig.reads[w], sensor.deg_of_counts)
+        rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
+        targets = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
+        if 0 < targets.size <= t.size:  # placed by the targets: an answer is the row's own only if it matches
+            own = row_reads(idx, rec[:, 0], targets)
+            got = np.asarray(sensor.deg_of_counts(rec[np.maximum(own, 0), 1]), dtype=np.float64)
+            logged = cyc[f"{w}_warp"]
+            idx = np.where((own >= 0) & (np.abs(got - logged) <= 1e-4 * np.maximum(1.0, np.abs(logged))), own, -1)
+        read_idx[w] = idx
         if w == "left":
             offset = off
-        rec = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)
         ok = idx >= 0
         for name, c in (("warp", 2), ("u", 3), ("airspeed", 4)):
             col = np.full(t.size, np.nan)
@@ -371,7 +384,7 @@ def realtime_result(scenario: Scenario, mode: str, cyc: dict[str, np.ndarray], v
         measured={w: cyc[f"{w}_warp"] for w in WINGS}, u_cmd={w: cyc[f"{w}_u"] for w in WINGS},
         u=cols["u"], flying=flying,
     )
-    return res, offset
+    return res, offset, read_idx
 
 
 def scenario_offset(scenario: Scenario, t: np.ndarray, setpoint: np.ndarray, lo: float, hi: float) -> float:
@@ -417,27 +430,96 @@ def measured_schedule(t: np.ndarray, flying: np.ndarray, tau: float, loop_hz: fl
                     stream_start_s=start - lat - 0.25 * speriod, wake_on_message=wake)
 
 
-def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig) -> tuple[tuple[float, ...], ...]:
-    """Per cycle-log row: when the bridge read each sensor and set each servo, after the cycle's start
-    (s; (left read, left target, right read, right target); the median where a row has no read)."""
+def row_reads(read_idx: np.ndarray, read_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
+    """Each row's read in the rig, also for rows whose answer the bridge did not get (-1: none).
+
+    The bridge reads a wing's sensor and then sets its servo once per cycle, and the rig handles
+    both in order: the read between the targets of rows j - 1 and j is row j's (the rig may have
+    stopped before handling the last rows' bytes: the targets it handled are the first rows').
+    Without targets ``read_idx`` (the answered reads, ``join_reads``) plus, in each gap between
+    two answered rows, the reads the rig took there given in order to the gap's first rows."""
+    n = len(read_idx)
+    if 0 < len(target_t) <= n:  # the rig stopped before it had handled the last cycles' bytes: a prefix
+        idx = np.full(n, -1, dtype=np.int64)
+        row = np.searchsorted(np.asarray(target_t, dtype=np.float64), np.asarray(read_t, dtype=np.float64))
+        ok = row < len(target_t)
+        idx[row[ok]] = np.flatnonzero(ok)
+        return idx
+    idx = np.array(read_idx, dtype=np.int64)
+    known = np.flatnonzero(idx >= 0)
+    bounds = [(-1, -1)] + [(int(j), int(idx[j])) for j in known] + [(n, len(read_t))]
+    for (r0, q0), (r1, q1) in zip(bounds, bounds[1:], strict=False):
+        for row_j, q in zip(range(r0 + 1, r1), range(q0 + 1, q1), strict=False):
+            idx[row_j] = q
+    return idx
+
+
+def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig, read_idx: dict[str, np.ndarray],
+              ) -> tuple[tuple[float, ...], ...]:
+    """Per cycle-log row: when the bridge's sensor read and servo target of each wing reached the rig,
+    after the cycle's start (s; (left read, left target, right read, right target)).
+
+    The bridge reads each sensor and then sets each servo once per cycle, and the board handles them
+    in order: the j-th target is the j-th row's, and a row's read is the one ``row_reads`` places
+    before it (answered or not; the median delay where none: a read the driver did not send).
+    Delays are kept however long: on a busy machine the board may take several cycles to answer,
+    and the replay must see that."""
     cols = []
+    start = log_t + rig_at_log0
     for w in WINGS:
         rd = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)[:, 0]
         tg = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
-        start = log_t + rig_at_log0
-        i = np.searchsorted(rd, start - 0.002)  # the first read at or after the cycle's start
+        idx = row_reads(read_idx[w], rd, tg)
+        ok = idx >= 0
         r = np.full(log_t.size, np.nan)
-        ok = i < rd.size
-        r[ok] = rd[i[ok]] - start[ok]
-        j = np.searchsorted(tg, start + np.nan_to_num(r, nan=0.0))  # the first target after that read
-        g = np.full(log_t.size, np.nan)
-        ok = j < tg.size
-        g[ok] = tg[j[ok]] - start[ok]
-        for c in (r, g):
-            bad = ~np.isfinite(c) | (c > 0.05)
-            c[bad] = np.median(c[~bad]) if (~bad).any() else 0.0
-        cols += [r, g]
+        r[ok] = rd[idx[ok]] - start[ok]
+        r[~ok] = np.median(r[ok]) if ok.any() else 0.0
+        if 0 < tg.size <= log_t.size:  # the j-th target is the j-th row's (the last rows': never handled)
+            g = np.full(log_t.size, np.nan)
+            g[:tg.size] = tg - start[:tg.size]
+            g[tg.size:] = np.median(g[:tg.size])
+        else:
+            j = np.searchsorted(tg, start + r)
+            g = np.full(log_t.size, np.nan)
+            g[j < tg.size] = tg[j[j < tg.size]] - start[j < tg.size]
+            g[~np.isfinite(g)] = np.median(g[np.isfinite(g)]) if np.isfinite(g).any() else 0.0
+        cols += [np.maximum(r, 0.0), np.maximum(g, 0.0)]
     return tuple(zip(*(c.tolist() for c in cols), strict=True))
+
+
+def fc_pwm_of(setpoint_left: np.ndarray, flying: np.ndarray, rig: Rig) -> tuple[float, ...]:
+    """The FC's aileron PWM (us) each cycle of the real-time run had, from the left wing's logged
+    setpoint (the rig's mix inverted; the FC sends whole microseconds); NaN before it followed the FC."""
+    w, bias, top = np.asarray(setpoint_left, dtype=np.float64), rig.bias_deg, rig.max_warp_deg
+    a = np.where(w >= bias, (w - bias) / (top - bias), w / bias - 1.0)
+    pwm = np.round(rig.pwm_of(a))
+    return tuple(np.where(flying & np.isfinite(pwm), pwm, np.nan).tolist())
+
+
+def rig_reads(vrig: VirtualRig, read_idx: dict[str, np.ndarray]) -> tuple[tuple[bool, ...], ...]:
+    """Per cycle-log row and wing: whether the rig's sensor took a reading in that cycle (``row_reads``),
+    answered in time or not."""
+    took = []
+    for w in WINGS:
+        rd = np.asarray(vrig.reads[w], dtype=np.float64).reshape(-1, 5)[:, 0]
+        tg = np.asarray(vrig.target_log[w], dtype=np.float64).reshape(-1, 2)[:, 0]
+        took.append((row_reads(read_idx[w], rd, tg) >= 0).tolist())
+    return tuple(zip(*took, strict=True))
+
+
+def board_answers(logged_deg: dict[str, np.ndarray], read_idx: dict[str, np.ndarray], counts_of_deg,
+                  ) -> tuple[tuple[float | None, ...], ...]:
+    """Per cycle-log row and wing (left, right): what the lock-step board answers the bridge's read.
+
+    None where the bridge got its own read's answer (the replay reads its simulated wing); otherwise
+    what the bridge got instead: NaN when no answer came in time, or the counts of the answer it took
+    (a late answer to an earlier query, on a board starved of CPU)."""
+    cols = []
+    for w in WINGS:
+        got = np.asarray(logged_deg[w], dtype=np.float64)
+        counts = np.where(np.isfinite(got), np.round(counts_of_deg(np.nan_to_num(got))), np.nan)
+        cols.append([None if i >= 0 else float(c) for i, c in zip(read_idx[w], counts, strict=True)])
+    return tuple(zip(*cols, strict=True))
 
 
 def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[str]) -> int:
@@ -447,7 +529,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
                              hold_s=HOLD_S)
     roll_csv = scenario.write_csv(out / "roll.csv")
     fc_port = free_udp_port()
-    wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=args.seed)
+    wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=args.seed, grid=True)
     vrig = VirtualRig(rig, wings)
     emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
     mock = bridge = None
@@ -465,7 +547,10 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
     try:
         pty = emu.start()
         cfg_path = out / "warpbridge-sitl.toml"
-        cfg_path.write_text(toml.replace("maestro:PTY", f"maestro:{pty}"), encoding="utf-8")
+        # the emulated board answers once this process gets the CPU, on a busy machine far later than a
+        # real board's millisecond: the bridge waits for it (its lateness is in the cycle log, and replayed)
+        cfg_path.write_text(toml.replace("maestro:PTY", f"maestro:{pty},timeout={EMULATED_BOARD_TIMEOUT_S:g}"),
+                            encoding="utf-8")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         # the bridge first (listening, in failsafe), then the FC: its roll clock starts with its process
         print(f"sitl: starting the bridge (Maestro emulator on {pty}) ...", flush=True)
@@ -506,7 +591,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
     cyc = read_cycle_log(bridge_log)
     np.savez_compressed(out / "rig.npz", **{f"{w}_{k}": np.asarray(v, dtype=np.float64) for w in WINGS for k, v in
                                            (("reads", vrig.reads[w]), ("targets", vrig.target_log[w]))})
-    rt, rig_at_log0 = realtime_result(scenario, args.mode, cyc, vrig)
+    rt, rig_at_log0, read_idx = realtime_result(scenario, args.mode, cyc, vrig)
     # log time -> scenario time: the scenario started with the mock's process, after the bridge's log
     guess = rig_at_log0 - t_mock
     fl = rt.flying if rt.flying is not None else np.ones(rt.t.size, dtype=bool)
@@ -521,7 +606,12 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
         raise UserError(f"the bridge followed the FC for only {max(0.0, t_to - t_from + SETTLE_S):.1f} s")
     print("sitl: flying the same stretch in lock-step (the bridge's cycle on a simulated clock) ...", flush=True)
     runs = {}
-    replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig))
+    table_counts, table_deg = rig.sensor.calibration_table()
+    answers = board_answers({w: cyc[f"{w}_warp"] for w in WINGS}, read_idx,
+                            lambda d: np.interp(d, table_deg, table_counts))
+    replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig, read_idx),
+                     answers=answers, fc_pwm=fc_pwm_of(cyc["left_setpoint"], fl, rig),
+                     rig_read=rig_reads(vrig, read_idx))
     stages = (("lock-step", replay), ("ideal timing", sched))
     for i, (label, sch) in enumerate(stages, start=1):
         with stage_progress(f"sitl: lock-step {i}/{len(stages)} ({label})", t_to + 0.05) as progress:
@@ -591,16 +681,39 @@ def _check_children(children, out: Path) -> None:
             raise UserError(f"the {name} exited with status {proc.returncode}; {out / logf}:\n{_tail(out / logf)}")
 
 
+def _cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system) a process has used so far, from /proc; None where there is none."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _wait_until(done, vrig: VirtualRig, children, out: Path, what: str) -> None:
-    """Keep the wings' time current until ``done()``; fail if a child dies or it takes too long."""
-    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    """Wait until ``done()``; fail if a child dies or gets nowhere.
+
+    On a busy machine a child's start-up (imports, compiled kernels) takes several times longer in
+    wall time but not in CPU time, so the children may use ``STARTUP_TIMEOUT_S`` s of CPU, or sit
+    that long without using any (blocked: hung), before this gives up (where /proc tells CPU time;
+    else after that long in wall time)."""
+    t0 = time.monotonic()
+    cpu = [_cpu_seconds(p.pid) for p, _, _ in children]
+    cpu0, last, last_change = cpu, cpu, t0
     while not done():
         vrig.tick()
         _check_children(children, out)
-        if time.monotonic() > deadline:
+        now, cpu = time.monotonic(), [_cpu_seconds(p.pid) for p, _, _ in children]
+        if any(c is None for c in cpu + cpu0):
+            stuck = now - t0 > STARTUP_TIMEOUT_S
+        else:
+            last_change = now if cpu != last else last_change
+            stuck = sum(cpu) - sum(cpu0) > STARTUP_TIMEOUT_S or now - last_change > STARTUP_TIMEOUT_S
+        last = cpu
+        if stuck:
             logs = "\n".join(f"{out / f}:\n{_tail(out / f)}" for _, _, f in children)
-            raise UserError(f"gave up waiting {STARTUP_TIMEOUT_S:g} s for {what}\n{logs}")
-        time.sleep(0.005)
+            raise UserError(f"gave up waiting for {what} after {now - t0:.0f} s\n{logs}")
+        time.sleep(0.02)
 
 
 @contextmanager
@@ -634,7 +747,7 @@ def _stage_bar(label: str, total_s: float) -> Iterator[Callable[[float], None]]:
 
 
 def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> None:
-    """Advance the wings for ``seconds`` of rig time from ``t0``, with progress; fail if a child dies."""
+    """Fly for ``seconds`` of rig time from ``t0``, with progress; fail if a child dies."""
     from tqdm import tqdm
 
     tty = sys.stderr.isatty()
@@ -648,7 +761,7 @@ def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> No
                 print(f"sitl: {next_line:g} / {seconds:.0f} s", flush=True)
                 next_line += 5.0
             _check_children(children, out)
-            time.sleep(0.005)
+            time.sleep(0.02)
 
 
 # ------------------------------------------------------------------ entry point

@@ -63,6 +63,12 @@ class FlexSensor:
         self.spec = spec
         self._rng = np.random.default_rng(seed)
 
+    def skip(self, n: int = 1) -> None:
+        """Draw (and drop) the noise of ``n`` readings: a replay keeps the noise sequence of a run
+        whose reads it does not all make."""
+        if n > 0 and self.spec.noise_deg > 0:
+            self._rng.normal(0.0, self.spec.noise_deg, n)
+
     def read(self, w_deg: float) -> int:
         """A 10-bit ADC reading of the sensor bent to ``w_deg`` (with noise)."""
         if not np.isfinite(w_deg):

@@ -128,10 +128,12 @@ class ShiftedFlow:
 
 
 def make_wings(scenario: Scenario, spec: WingSpec, w0_deg: float, seed: int = 0, record: bool = False,
-               flow_shift_s: float = 0.0) -> dict[str, SimWing]:
+               flow_shift_s: float = 0.0, t0: float = 0.0, grid: bool = False) -> dict[str, SimWing]:
     """Both simulated wings for a scenario: each in its own realisation of the scenario's flow.
 
-    ``flow_shift_s``: the flow's time at the wings' time 0 (to meet the same gusts as another run)."""
+    ``flow_shift_s``: the flow's time at the wings' time 0 (to meet the same gusts as another run);
+    ``t0``: the wings' start time; ``grid``: sub-steps on a grid anchored at the flow's time 0
+    (``SimWing`` ``grid_origin``), the same for a real-time run and its replay."""
     wings = {}
     for i, name in enumerate(WINGS):
         flow: Flow
@@ -143,7 +145,8 @@ def make_wings(scenario: Scenario, spec: WingSpec, w0_deg: float, seed: int = 0,
             flow = SteadyFlow(scenario.airspeed_ms)
         if flow_shift_s:
             flow = ShiftedFlow(flow, flow_shift_s)
-        wings[name] = SimWing(spec, flow, w0_deg=w0_deg, seed=seed + 101 * (i + 1), record=record)
+        wings[name] = SimWing(spec, flow, t0=t0, w0_deg=w0_deg, seed=seed + 101 * (i + 1), record=record,
+                              grid_origin=-flow_shift_s if grid else None)
     return wings
 
 
@@ -197,7 +200,12 @@ class Schedule:
     and the FC's HEARTBEAT at 1 Hz from ``heartbeat_offset_s``. ``wake_on_message`` None: the
     config's ``[loop] wake_on_message``. ``cycle_times``: run the cycles exactly then instead
     (a real-time run's, from its cycle log: its scheduling gaps included), with ``io_delays`` per
-    cycle: (left sensor read, left servo target, right read, right target) after the cycle's start."""
+    cycle: (left sensor read, left servo target, right read, right target) after the cycle's start,
+    ``answers`` per cycle and wing: None = the board reads the wing, else what the real-time bridge
+    got instead (NaN: no answer in time; counts: a late answer to an earlier query), and ``fc_pwm``
+    per cycle: the aileron PWM the real-time bridge had from the FC then (its messages' own timing),
+    ``rig_read`` per cycle and wing: whether the rig's sensor took a reading then (whatever the
+    bridge got), so that the replay's sensors draw the same noise in the same order."""
 
     tick_offset_s: float = 0.0
     msg_offset_s: float = 0.0037
@@ -208,6 +216,9 @@ class Schedule:
     wake_on_message: bool | None = None
     cycle_times: tuple[float, ...] | None = None
     io_delays: tuple[tuple[float, float, float, float], ...] | None = None
+    answers: tuple[tuple[float | None, float | None], ...] | None = None
+    fc_pwm: tuple[float, ...] | None = None
+    rig_read: tuple[tuple[bool, bool], ...] | None = None
 
 
 class SimLink(SimLinkBase):
@@ -224,6 +235,7 @@ class SimLink(SimLinkBase):
         self._pending: list[tuple[str, object]] = []
         self._every = max(1, round(1.0 / (fc.period * schedule.airspeed_rate_hz)))
         self._next_hb = schedule.heartbeat_offset_s
+        self.pwm_override: dict[int, float] | None = None  # replays: the PWM a real-time cycle had
 
     def next_arrival(self) -> float:
         """When the next message (servo output or heartbeat) reaches the bridge."""
@@ -252,6 +264,9 @@ class SimLink(SimLinkBase):
             elif kind == "airspeed":
                 self.airspeed, self.airspeed_time = float(value), now  # type: ignore[arg-type]
         self._pending.clear()
+        if self.pwm_override is not None and self.servo_time is not None:
+            self.servo_raw = dict(self.pwm_override)
+            self.servo_pwm = dict(self.pwm_override)
         return []
 
 
@@ -280,6 +295,8 @@ class WingBoard:
         self.targets = 0
         self.target_log: dict[str, list[tuple[float, float]]] = {w: [] for w in WINGS}
         self.delays: dict[str, tuple[float, float]] = {}  # wing -> (read, target) delay after clock()
+        self.answers: dict[str, float | None] = {}  # wing -> what the next read answers instead (replays)
+        self.drawn: dict[str, bool] = {}  # wing -> whether such a read still took the sensor's reading
 
     def set_target(self, channel: int, pulse_us: float) -> None:
         wing = self.servo_of.get(channel)
@@ -303,6 +320,10 @@ class WingBoard:
         wing = self.sensor_of.get(channel)
         if wing is None:
             return None
+        if self.answers.get(wing) is not None:  # a replayed answer: no answer (NaN) or someone else's
+            self.wings[wing].sensor.skip(int(self.drawn.get(wing, True)))  # the same noise sequence as the rig
+            counts = self.answers[wing]
+            return None if not math.isfinite(counts) else counts
         t = self.clock() + self.delays.get(wing, (0.0, 0.0))[0]
         w = self.wings[wing]
         w.advance(t)
@@ -363,13 +384,15 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
     if cfg.loop.log is not None:
         cfg = replace(cfg, loop=replace(cfg.loop, log=None))
     wake = cfg.loop.wake_on_message if sched.wake_on_message is None else sched.wake_on_message
-    clock = SimClock(0.0)
+    # a replay starts where the real-time run's log does (the bridge's start, before the scenario's)
+    t0 = min(0.0, min(sched.cycle_times, default=0.0)) if sched.cycle_times is not None else 0.0
+    clock = SimClock(t0)
     fc = FcOutputs(scenario, cfg.link.servo_rate_hz, seed=seed + 7,
                    phase=(sched.msg_offset_s * cfg.link.servo_rate_hz) % 1.0, start_s=sched.stream_start_s)
     link = SimLink(scenario, fc, sched, clock)
     rig = scenario.rig
     wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=seed, record=record_wings,
-                       flow_shift_s=flow_shift_s)
+                       flow_shift_s=flow_shift_s, t0=t0, grid=sched.cycle_times is not None)
     board = WingBoard(rig, wings, clock, inject)
     bridge = Bridge(cfg, servo=board, sensor=board, link=link, clock=clock)
     try:
@@ -395,15 +418,21 @@ def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: Wi
     k = math.ceil((0.0 - sched.tick_offset_s) / period - 1e-9)
     given = None
     if sched.cycle_times is not None:
-        delays = sched.io_delays or ((0.0, 0.0, 0.0, 0.0),) * len(sched.cycle_times)
-        given = iter(sorted((x, d) for x, d in zip(sched.cycle_times, delays, strict=True) if x >= 0.0))
+        n = len(sched.cycle_times)
+        delays = sched.io_delays or ((0.0, 0.0, 0.0, 0.0),) * n
+        answers = sched.answers or ((None,) * len(WINGS),) * n
+        pwm = sched.fc_pwm or (math.nan,) * n
+        drawn = sched.rig_read or ((True,) * len(WINGS),) * n
+        given = iter(sorted(zip(sched.cycle_times, delays, answers, pwm, drawn, strict=True), key=lambda e: e[0]))
     rows: list[tuple] = []
     next_report = 1.0
     while True:
         if given is not None:
-            t, d = next(given, (math.inf, (0.0, 0.0, 0.0, 0.0)))
-            board.delays = {w: (max(0.0, d[2 * i]), max(0.0, d[2 * i], d[2 * i + 1]))
-                            for i, w in enumerate(WINGS)}
+            t, d, a, p, took = next(given, (math.inf, (0.0,) * 4, (None,) * len(WINGS), math.nan, (True,) * 2))
+            link.pwm_override = {cfg.wings["left"].source_channel: p} if math.isfinite(p) else None
+            board.delays = {w: (max(0.0, d[2 * i]), max(0.0, d[2 * i], d[2 * i + 1])) for i, w in enumerate(WINGS)}
+            board.answers = dict(zip(WINGS, a, strict=True))
+            board.drawn = dict(zip(WINGS, took, strict=True))
         else:
             t_tick = sched.tick_offset_s + k * period
             t_msg = link.next_arrival()

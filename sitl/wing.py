@@ -228,11 +228,17 @@ class WingSpec:
 class SimWing:
     """One wing's state. ``set_pulse`` commands, ``advance(t)`` integrates, ``read_counts`` senses.
 
-    Thread-safe: the real-time run calls these from the emulator's and the clock's threads."""
+    Thread-safe: the real-time run calls these from the emulator's and the clock's threads.
+    ``grid_origin``: None, sub-steps of ``substep_s`` from each ``advance``'s start; a time, sub-steps
+    end on that time plus whole sub-steps (and at each ``advance``'s end), so that advancing to
+    such a grid point in between changes nothing: a run advanced more often (the real-time rig,
+    kept current between the bridge's calls) integrates exactly as its replay."""
 
     def __init__(self, spec: WingSpec = WingSpec(), flow: Flow | None = None, *, t0: float = 0.0,
-                 w0_deg: float = 0.0, seed: int = 0, record: bool = False) -> None:
+                 w0_deg: float = 0.0, seed: int = 0, record: bool = False, grid_origin: float | None = None,
+                 ) -> None:
         self.spec = spec
+        self.grid_origin = grid_origin
         self.flow: Flow = flow if flow is not None else SteadyFlow(0.0)
         self.pulse_us = spec.rest_pulse(w0_deg)
         self.servo = ServoModel(spec.servo, t0, self.pulse_us)
@@ -255,11 +261,20 @@ class SimWing:
         """Integrate from the current time to ``t`` in sub-steps (no-op if t is not later)."""
         with self._lock:
             h = self.spec.substep_s
-            n = math.ceil((t - self.t) / h - 1e-9)
-            if n <= 0:
-                return
-            ts = self.t + h * np.arange(1, n + 1)
-            ts[-1] = t
+            if self.grid_origin is None:
+                n = math.ceil((t - self.t) / h - 1e-9)
+                if n <= 0:
+                    return
+                ts = self.t + h * np.arange(1, n + 1)
+                ts[-1] = t
+            else:
+                if not t > self.t + 1e-9:
+                    return
+                o = self.grid_origin
+                k = np.arange(math.floor((self.t - o) / h) + 1, math.ceil((t - o) / h))
+                inner = o + h * k
+                ts = np.append(inner[(inner > self.t + 1e-9) & (inner < t - 1e-9)], t)
+                n = ts.size
             v = self.flow.airspeed(ts)
             buffet = self.flow.buffet_deg(ts, v)
             for k in range(n):

@@ -31,3 +31,62 @@ def drain_mavlink(sock, parser) -> list:
         except (BlockingIOError, ConnectionRefusedError):
             return out
         out.extend(m for m in (parser.parse_buffer(data) or []) if m.get_type() != "BAD_DATA")
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system, s) process ``pid`` has used so far (Linux /proc); None if unknown."""
+    import os
+    from pathlib import Path
+
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def wait_while_working(cond, pid: int, cpu_s: float = 20.0, idle_s: float = 20.0, step: float = 0.02):
+    """Wait until ``cond()`` holds while process ``pid`` works towards it; return ``cond()``.
+
+    For what a process does once it has started (imports, compiling): a busy machine makes that take
+    several times longer in wall time but not in CPU time. So give up only once ``pid`` has exited,
+    has used ``cpu_s`` s of CPU since the wait began, or none for ``idle_s`` s (blocked: hung).
+    Without /proc, after ``cpu_s`` s of wall time."""
+    import time
+
+    t0 = last_change = time.monotonic()
+    cpu0 = last = cpu_seconds(pid)
+    while True:
+        v = cond()
+        if v:
+            return v
+        now, cpu = time.monotonic(), cpu_seconds(pid)
+        if cpu is None or cpu0 is None:
+            if cpu is None and cpu0 is not None:  # exited
+                return cond()
+            if now - t0 > cpu_s:
+                return cond()
+        else:
+            if cpu != last:
+                last, last_change = cpu, now
+            if cpu - cpu0 > cpu_s or now - last_change > idle_s:
+                return cond()
+        time.sleep(step)
+
+
+def run_to_end(cmd: list[str], **kwargs):
+    """``subprocess.run(cmd, capture_output=True, text=True, **kwargs)`` without a wall-clock timeout:
+    the process may take as long as it keeps working (``wait_while_working``; a busy machine slows
+    its start-up), and is killed once it stalls. Returns the ``CompletedProcess``."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True, **kwargs)
+        if not wait_while_working(lambda: proc.poll() is not None, proc.pid, cpu_s=60.0):
+            proc.kill()
+            proc.wait()
+            raise AssertionError(f"{cmd} stalled or kept running; killed")
+        out.seek(0)
+        err.seek(0)
+        return subprocess.CompletedProcess(cmd, proc.returncode, out.read(), err.read())

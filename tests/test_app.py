@@ -70,11 +70,25 @@ class FakeFc:
             if m.get_type() == "STATUSTEXT":
                 self.texts.append(m.text)
 
+    def run_until(self, aileron_us: int, done, limit_s: float = 120.0) -> None:
+        """Stream until ``done()`` (the bridge's start-up takes longer on a busy machine)."""
+        end = time.monotonic() + limit_s
+        while not done() and time.monotonic() < end:
+            self.send(aileron_us)
+            time.sleep(0.02)
+        assert done()
+
     def run(self, aileron_us: int | None, seconds: float) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             self.send(aileron_us)
             time.sleep(0.02)
+
+
+def following(tmp_path: Path) -> bool:
+    """Whether the bridge's cycle log (flushed every half second) shows it following the FC."""
+    logs = list(tmp_path.glob("run-*.csv"))
+    return bool(logs) and any(",ff," in line for line in logs[0].read_text().splitlines())
 
 
 def read_log(tmp_path: Path) -> list[dict[str, str]]:
@@ -94,6 +108,7 @@ def test_pulses_follow_aileron_failsafe_neutralises_and_recovers(tmp_path):
     bridge.start()
     try:
         fc = FakeFc(port)
+        fc.run_until(1500, lambda: following(tmp_path))
         fc.run(1500, 0.8)  # neutral
         fc.run(1800, 0.8)  # roll right: left wing gains lift
         fc.run(None, 0.8)  # FC silent (heartbeats only): failsafe

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import threading
+import time
 
 import pytest
 import serial
@@ -117,7 +119,51 @@ def test_silent_board_gives_none_not_a_hang(board, maestro):
     assert maestro.read_counts(5) is None
     assert maestro.poll_errors() == NO_REPLY
     board.emu.mute = False
-    assert maestro.read_counts(5) == 512.0
+    assert answers_until(lambda: maestro.read_counts(5)) == 512.0  # once the lost answer is given up on
+
+
+def answers_until(read, deadline_s: float = 5.0):
+    """Call ``read`` until it gives a value (the driver gives None while a late answer is due)."""
+    end = time.monotonic() + deadline_s
+    while (v := read()) is None and time.monotonic() < end:
+        time.sleep(0.005)
+    return v
+
+
+def test_a_late_answer_is_never_taken_for_the_next_query(board):
+    """A board (or a starved emulator) answering after the read gave up: that answer is dropped.
+
+    The board answers channel 5 once, 0.3 s late: after the driver gave up on it (0.2 s) and while
+    the next query's answer is awaited. Neither that query nor any later may take the late 111."""
+    board.analog.update({5: 111, 6: 666})
+    slow = threading.Event()
+    slow.set()
+
+    def analog(ch):
+        if ch == 5 and slow.is_set():
+            slow.clear()
+            time.sleep(0.3)
+        return board.analog.get(ch)
+
+    board.emu.read_analog = analog
+    with Maestro(board.emu.device_path, timeout=0.2, late_answer_s=60.0) as m:
+        assert m.read_counts(5) is None  # gave up
+        assert m.read_counts(6) is None  # nothing is asked while the answer to 5 may still come
+        assert answers_until(lambda: m.read_counts(6)) == 666.0
+        assert m.read_counts(5) == 111.0
+        assert m.poll_errors() == 0
+        slow.set()
+        assert m.read_counts(5) is None  # late again, and now the error poll comes before the answer:
+        assert m.poll_errors() == 0  # it waits for the late answer instead of reporting a silent board
+
+
+def test_an_answer_that_never_comes_is_given_up_on(board):
+    board.analog[5] = 512
+    with Maestro(board.emu.device_path, timeout=0.02, late_answer_s=0.1) as m:
+        board.emu.mute = True  # the board drops the query
+        assert m.read_counts(5) is None
+        board.emu.mute = False
+        assert answers_until(lambda: m.read_counts(5)) == 512.0
 
 
 def test_garbage_on_the_line_is_flagged_and_the_next_command_works(board, maestro):
@@ -295,3 +341,13 @@ def test_backoff_rejects_bad_settings():
 def test_pyserial_exceptions_are_oserrors():
     # fc_outputs relies on this to map a lost serial MAVLink link to DeviceError
     assert issubclass(serial.SerialException, OSError)
+
+
+def test_maestro_spec_takes_a_read_timeout(board):
+    path = board.emu.device_path
+    with hw.open_servo(f"maestro:{path},timeout=0.3") as m, hw.open_servo(f"maestro:{path},57600") as plain:
+        assert (m.timeout, m.baudrate) == (0.3, 115200) and plain.timeout == 0.02
+        assert hw.open_sensor(f"maestro:{path},timeout=0.3", shared_servo=m) is m  # the same port
+    for bad in ("timeout=x", "timeout=0", "timeout=20"):
+        with pytest.raises(ValueError, match="timeout"):
+            hw.open_servo(f"maestro:{path},{bad}")

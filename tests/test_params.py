@@ -132,8 +132,10 @@ WRITER = textwrap.dedent(
     from warpbridge.bridge.params import ParamSpec, ParamStore
     specs = [ParamSpec("A", 0, 0, 1000, "a", integer=True), ParamSpec("B", 0, 0, 1000, "b", integer=True)]
     store = ParamStore(specs, sys.argv[1], background=False)
-    print("ready", flush=True)
-    k = 0
+    store.set("A", 1)
+    store.set("B", 1)
+    print("ready", flush=True)  # writing is under way (on a busy machine the first may come late)
+    k = 1
     while True:
         k = k % 999 + 1
         store.set("A", k)
