@@ -205,12 +205,17 @@ class IdentResult:
     heldout_mask: np.ndarray = field(repr=False)
     z0: float = 0.0
     trace: SearchTrace | None = field(default=None, repr=False)
+    support: Support | None = None
 
     def fit_dict(self) -> dict:
-        return {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
-                "linear_heldout_rms_deg": self.linear_heldout_rms, "n_train": self.n_train,
-                "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
-                "evaluations": self.evaluations, "method": "differential-evolution + nelder-mead"}
+        d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
+             "linear_heldout_rms_deg": self.linear_heldout_rms, "n_train": self.n_train,
+             "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
+             "evaluations": self.evaluations, "method": "differential-evolution + nelder-mead",
+             "z0_start_of_log": self.z0}
+        if self.support is not None:
+            d |= {"supported": self.support.supported, "support": self.support.reason}
+        return d
 
 
 def check_log(t: np.ndarray, u: np.ndarray, w: np.ndarray, min_samples: int = 50) -> None:
@@ -235,11 +240,99 @@ def warmup_end(u: np.ndarray, max_frac: float = 0.1) -> int:
     return min(first, int(max_frac * u.size))
 
 
+def linear_fit(u: np.ndarray, w: np.ndarray, train: np.ndarray) -> tuple[float, float]:
+    """(c0, c1) of the least-squares straight line w = c0 + c1 u on the training samples."""
+    c1, c0 = np.polyfit(u[train], w[train], 1)
+    return float(c0), float(c1)
+
+
 def linear_baseline(u: np.ndarray, w: np.ndarray, train: np.ndarray, held: np.ndarray) -> float:
     """Held-out RMS of a straight-line fit w = c0 + c1 u on the training part."""
-    c1, c0 = np.polyfit(u[train], w[train], 1)
+    c0, c1 = linear_fit(u, w, train)
     e = w[held] - (c0 + c1 * u[held])
     return float(np.sqrt(np.mean(e ** 2)))
+
+
+def turning_points(u: np.ndarray, frac: float = 0.05) -> int:
+    """Reversals of u after which it moves back by at least ``frac`` of its span (jitter does not count)."""
+    u = np.asarray(u, dtype=np.float64)
+    thr = frac * float(np.ptp(u)) if u.size else 0.0
+    if not thr > 0:
+        return 0
+    count, direction = 0, 0
+    lo = hi = float(u[0])
+    for x in u.tolist():
+        if direction == 0:
+            lo, hi = min(lo, x), max(hi, x)
+            if x - lo >= thr:
+                direction, hi = 1, x
+            elif hi - x >= thr:
+                direction, lo = -1, x
+        elif direction == 1:
+            if x > hi:
+                hi = x
+            elif hi - x >= thr:
+                count, direction, lo = count + 1, -1, x
+        else:
+            if x < lo:
+                lo = x
+            elif x - lo >= thr:
+                count, direction, hi = count + 1, 1, x
+    return count
+
+
+@dataclass(frozen=True)
+class Support:
+    """Whether a log supports the identified model: it must beat a straight line on the held-out part."""
+
+    supported: bool
+    reason: str
+
+
+MIN_TURNING_POINTS = 4  # reversals (5 % of the span or more) the training part needs to pin the loop down
+
+
+def support_check(t: np.ndarray, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray, train: np.ndarray,
+                  held: np.ndarray, noise: float) -> Support:
+    """Does the model beat the best straight line u -> w (fitted on the same training samples) on the
+    held-out samples? If not, the likeliest reason in one line: too little excitation, a held-out
+    input beyond the training range, a warp that drifts, or hysteresis the data do not show."""
+    if not held.any():
+        return Support(False, "no held-out samples to judge the model on")
+    c0, c1 = linear_fit(u, w, train)
+    rms = float(np.sqrt(np.mean((w_pred[held] - w[held]) ** 2)))
+    line = float(np.sqrt(np.mean((c0 + c1 * u[held] - w[held]) ** 2)))
+    score = f"held-out RMS {rms:.3g} deg against {line:.3g} deg for a straight line"
+    if rms < line:
+        return Support(True, f"the model beats a straight line on the held-out part ({score})")
+    reasons = []
+    k = turning_points(u[train])
+    if k < MIN_TURNING_POINTS:
+        reasons.append(f"too little excitation: the tendon input turns back only {k} times in the training part "
+                       f"(at least {MIN_TURNING_POINTS} needed)")
+    lo, hi = float(np.min(u[train])), float(np.max(u[train]))
+    margin = 0.02 * (hi - lo)
+    out = float(np.mean((u[held] < lo - margin) | (u[held] > hi + margin)))
+    if out > 0.05:
+        reasons.append(f"the held-out part drives the tendon beyond the training range ({out:.0%} of its samples): "
+                       "the model would extrapolate")
+    r = w - w_pred
+    shift = float(np.mean(r[held]) - np.mean(r[train]))
+    floor = 3.0 * noise if math.isfinite(noise) else 0.0
+    if abs(shift) > max(floor, 0.5 * rms):
+        reasons.append(f"the warp drifts: the held-out residual is offset by {shift:+.3g} deg from the training "
+                       "part's (sensor zero drift, or the rig changed during the log)")
+    if not reasons:
+        fit = float(np.sqrt(np.mean((w_pred[train] - w[train]) ** 2)))
+        line_fit = float(np.sqrt(np.mean((c0 + c1 * u[train] - w[train]) ** 2)))
+        if fit >= 0.9 * line_fit:
+            reasons.append("the data show no hysteresis the model can use: it fits the training part no better "
+                           f"than a line ({fit:.3g} against {line_fit:.3g} deg)")
+        else:
+            reasons.append(f"the held-out part behaves differently from the training part ({rms:.3g} deg RMS "
+                           f"there against {fit:.3g} deg on the training part): the rig changed during the log, "
+                           "or the training part does not show what the held-out part does")
+    return Support(False, "the data do not support the model: " + "; ".join(reasons) + f" ({score})")
 
 
 # ---- the search ------------------------------------------------------------------------------
@@ -491,8 +584,10 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     err = w_pred - w
     train_rms = float(np.sqrt(np.mean(err[train_mask] ** 2)))
     held_rms = float(np.sqrt(np.mean(err[held_mask] ** 2))) if held_mask.any() else float("nan")
+    noise = noise_floor(w)
     return IdentResult(
-        params=params, train_rms=train_rms, heldout_rms=held_rms, noise=noise_floor(w),
+        params=params, train_rms=train_rms, heldout_rms=held_rms, noise=noise,
         linear_heldout_rms=linear_baseline(u, w, train_mask, held_mask), n_train=int(train_mask.sum()),
         n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=search.calls + obj.calls,
-        split_time=split_time, w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask, z0=z0, trace=trace)
+        split_time=split_time, w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask, z0=z0, trace=trace,
+        support=support_check(t, u, w, w_pred, train_mask, held_mask, noise))

@@ -151,3 +151,23 @@ def estimate_z0(params: BoucWenParams, u, w, *,
         if f < c_best:
             z_best, c_best = x, f
     return float(z_best)
+
+
+def estimate_plant_z0(plant, t, u, w, airspeed=None, *, opening: int | None = None) -> float:
+    """``estimate_z0`` for a ``model.plant.Plant`` with effects: the algebraic value from the core
+    model on the input the sheath sees, refined by simulating the whole effects chain."""
+    from warpbridge.model.effects import apply_input_effects
+
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    if u.size == 0:
+        return 0.0
+    if not plant.effects.active():
+        return estimate_z0(plant.params, u, w, opening=opening)
+    a = None if airspeed is None else np.asarray(airspeed, dtype=np.float64)
+
+    def simulate(z0: float, m: int) -> np.ndarray:
+        return plant.simulate(t[:m], u[:m], None if a is None else a[:m], z0=z0)[1]
+
+    x = apply_input_effects(plant.effects, t, u)
+    return estimate_z0(plant.core_params(), x, w, simulate=simulate, opening=opening)
