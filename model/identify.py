@@ -3,9 +3,11 @@
 A global population search (differential evolution, in place of the paper's
 genetic algorithm) then a Nelder-Mead polish, on the forward output error:
 simulate warp from the logged tendon input and compare with the measured warp.
-The last part of the log is held out and only scored.
+The last part of the log is held out and only scored; the result says whether
+the model beats a straight line u -> w fitted on the same training samples
+there, and if not, why (``support_check``).
 
-Three things make this fast and robust:
+What makes this fast and robust:
 
 - Normalised units: w / Ws and (u - uc) / Us, so the search box is the same for
   any wing; the model's form is unchanged by this scaling (sgn(w) is kept).
@@ -14,9 +16,20 @@ Three things make this fast and robust:
   reversal, A and n, then the quadratic. With warp on one side of zero only four
   combinations of b are identifiable; two more are fitted when the log holds
   warp of both signs.
+- The initial state is not assumed: every candidate starts from the z its own
+  parameters give for the log's first samples (z is algebraic in u and w), so a
+  log that starts with the tendon loaded is fitted from its first sample.
 - Path compression: the model is rate independent, so its output at a kept
   sample depends only on the input's extrema before it. Keeping every reversal
   plus a decimated grid gives the same outputs at a fraction of the cost.
+- A cost bounded by the data, not by luck: an evaluation costs about one
+  sub-step per kept sample plus some tens per reversal, so the search scores on
+  at most ``SEARCH_POINTS`` samples and ``SEARCH_REVERSALS`` reversals and the
+  polish on at most ``max_fit_points`` and ``POLISH_REVERSALS`` (evenly spread
+  stretches of the training part, each started from its own first samples);
+  a candidate that needs more sub-steps than its budget is rejected instead of
+  being integrated for as long as a thousand ordinary ones; the search stops
+  when its population agrees within ``SEARCH_SPREAD``.
 
 Everything here is pure numerics; progress is reported through a callback.
 """
