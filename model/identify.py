@@ -42,10 +42,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
 from scipy.optimize import differential_evolution, minimize
 
 from warpbridge.model import kernels as K
+from warpbridge.model._jit import njit, prange
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.initial_state import algebraic_z0_rows, estimate_z0
 
