@@ -1,18 +1,32 @@
-"""Local benchmark on measured tendon-sheath data (not a test): identify on one sine amplitude, predict the others.
+"""Local benchmark on measured tendon-sheath data (not a test): does identification beat a straight line
+on data it never saw?
 
 Reads the surgical-robot tendon-sheath measurements in ``../shared/realdata/tsm-kaist``
 (or the folder given as the first argument) without copying them: each file is
-converted to the log format (t, u = desired angle, warp = measured angle) in a
-temporary directory and the real ``warpbridge identify`` / ``predict`` commands
-run on it. Reports held-out RMS beside a straight-line fit, and on ``0.txt``
-(first 2000 rows, repeated rows dropped) the mean squared error beside the
-published classic Bouc-Wen figure (0.72-0.78 deg^2).
+converted to the log format (t, u = desired angle, warp = measured angle; rows
+with a repeated timestamp merged, keeping the last) in a temporary directory and
+the real ``warpbridge identify`` / ``predict`` commands run on it. The straight
+line is the least-squares line u -> warp fitted on the same training samples as
+the model (the identified log's first 75 % by time). Every figure says which
+samples it covers.
+
+1. Each log, its own held-out last quarter (what ``identify`` reports), and whether
+   ``identify`` says the data support the model.
+2. The other logs of the same condition, predicted whole from their first sample
+   (z0 estimated from it): the three sine amplitudes of sheath configuration 0
+   (``conf0_A.txt``, 2 kHz logger, decimated to 500 Hz); for the bend series
+   (``N.txt``, one log per bend) the other half of the same file, both ways.
+3. ``0.txt``, first 2000 rows (the published baseline's segment): mean squared
+   error over the training part, the held-out part and the whole segment, with the
+   initial state estimated and at rest (z0 = 0, what ``predict`` did before).
 Run: python benchmarks/bench_realdata_identify.py [DATA_DIR]
 """
 
 from __future__ import annotations
 
 import json
+import os
+import statistics
 import sys
 import tempfile
 import time
@@ -23,74 +37,168 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "tsm-kaist"
+
+def default_dir() -> Path:
+    """``shared/realdata/tsm-kaist`` beside the repository or one of the folders above it."""
+    here = Path(__file__).resolve()
+    for up in here.parents[1:4]:
+        d = up / "shared" / "realdata" / "tsm-kaist"
+        if d.is_dir():
+            return d
+    return here.parents[2] / "shared" / "realdata" / "tsm-kaist"
+BENDS = (0, 60, 120, 180, 240)
+AMPLITUDES = (50, 60, 70)
 
 
-def to_csv(src: Path, dst: Path, u_col: int, w_col: int, max_rows: int | None = None, decimate: int = 1) -> Path:
+def load(src: Path, u_col: int, w_col: int, max_rows: int | None = None, decimate: int = 1) -> np.ndarray:
+    """Rows (t, u, warp): the first run of the file, repeated timestamps merged (the last row kept)."""
     d = np.loadtxt(src, delimiter=",")
-    t = d[:, 0]
-    back = np.flatnonzero(np.diff(t) < 0)
-    if back.size:  # two runs concatenated: keep the first
+    back = np.flatnonzero(np.diff(d[:, 0]) < 0)
+    if back.size:  # a second run appended (t restarts): keep the first
         d = d[: back[0] + 1]
     if max_rows:
         d = d[:max_rows]
     d = d[::decimate]
-    np.savetxt(dst, np.column_stack([d[:, 0], d[:, u_col], d[:, w_col]]), delimiter=",", header="t,u,warp",
-               comments="", fmt="%.9g")
-    return dst
+    keep = np.ones(d.shape[0], bool)
+    keep[:-1] = np.diff(d[:, 0]) > 0
+    return d[keep][:, [0, u_col, w_col]]
 
 
-def line_rms(train: Path, test: Path) -> float:
-    a = np.loadtxt(train, delimiter=",", skiprows=1)
-    b = np.loadtxt(test, delimiter=",", skiprows=1)
-    c1, c0 = np.polyfit(a[:, 1], a[:, 2], 1)
-    return float(np.sqrt(np.mean((b[:, 2] - (c0 + c1 * b[:, 1])) ** 2)))
+def write(rows: np.ndarray, path: Path) -> Path:
+    np.savetxt(path, rows, delimiter=",", header="t,u,warp", comments="", fmt="%.9g")
+    return path
 
 
-def predict_rms(cli, model: Path, log: Path, out: Path) -> float:
-    assert cli(["predict", str(log), "--model", str(model), "-o", str(out)]) == 0
-    pred = np.loadtxt(out, delimiter=",", skiprows=1)[:, 1]
-    meas = np.loadtxt(log, delimiter=",", skiprows=1)[:, 2]
-    # repeated timestamps are merged by the reader: compare on the merged grid
-    t = np.loadtxt(log, delimiter=",", skiprows=1)[:, 0]
-    keep = np.ones(t.size, bool)
-    keep[:-1] = np.diff(t) > 0
-    return float(np.sqrt(np.mean((pred - meas[keep]) ** 2)))
+def rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+class Bench:
+    def __init__(self, tmp: Path) -> None:
+        from warpbridge.bridge.cli import main as cli
+
+        self.cli = cli
+        self.tmp = tmp
+        self.models: dict[str, tuple[Path, dict, np.ndarray, float]] = {}
+
+    def identify(self, name: str, rows: np.ndarray) -> tuple[dict, float]:
+        log = write(rows, self.tmp / f"{name}.csv")
+        model = self.tmp / f"{name}.json"
+        t0 = time.perf_counter()
+        assert self.cli(["identify", str(log), "-o", str(model), "--quiet"]) == 0
+        wall = time.perf_counter() - t0
+        fit = json.loads(model.read_text())["fit"]
+        train = rows[:, 0] < fit["split_time_s"]
+        c1, c0 = np.polyfit(rows[train, 1], rows[train, 2], 1)
+        self.models[name] = (model, fit, np.array([c0, c1]), wall)
+        return fit, wall
+
+    def predict(self, name: str, rows: np.ndarray, tag: str) -> np.ndarray:
+        log = write(rows, self.tmp / f"{tag}.csv")
+        out = self.tmp / f"{tag}.pred.csv"
+        with open(os.devnull, "w") as null:
+            stdout, sys.stdout = sys.stdout, null
+            try:
+                assert self.cli(["predict", str(log), "--model", str(self.models[name][0]), "-o", str(out)]) == 0
+            finally:
+                sys.stdout = stdout
+        return np.loadtxt(out, delimiter=",", skiprows=1)[:, 1]
+
+    def line(self, name: str, u: np.ndarray) -> np.ndarray:
+        c0, c1 = self.models[name][2]
+        return c0 + c1 * u
 
 
 def main(data: Path) -> None:
-    from warpbridge.bridge.cli import main as cli
-
     if not data.is_dir():
         print(f"no measured data at {data}: skipped")
         return
     tmp = Path(tempfile.mkdtemp(prefix="wb-realdata-"))
-    rows = []
-    conf = {a: to_csv(data / f"conf0_{a}.txt", tmp / f"conf0_{a}.csv", 1, 5, decimate=4) for a in (50, 60, 70)}
-    for train_a in (50, 60, 70):
-        model = tmp / f"model_{train_a}.json"
-        t0 = time.perf_counter()
-        assert cli(["identify", str(conf[train_a]), "-o", str(model), "--quiet"]) == 0
-        wall = time.perf_counter() - t0
-        fit = json.loads(model.read_text())["fit"]
-        for test_a in (50, 60, 70):
-            if test_a == train_a:
+    b = Bench(tmp)
+    logs = {f"{n}.txt": load(data / f"{n}.txt", 1, 3) for n in BENDS}
+    logs |= {f"conf0_{a}.txt": load(data / f"conf0_{a}.txt", 1, 5, decimate=4) for a in AMPLITUDES}
+
+    print(f"load average at start {os.getloadavg()[0]:.1f} (2 cores shared)")
+    # 1. each log, its own held-out last quarter
+    rows1, walls, wins = [], [], 0
+    for name, d in logs.items():
+        fit, wall = b.identify(name, d)
+        walls.append(wall)
+        split = fit["split_time_s"]
+        wins += fit["heldout_rms_deg"] < fit["linear_heldout_rms_deg"]
+        rows1.append([name, d.shape[0], f"{d[0, 0]:.2f}-{split:.2f}", f"{split:.2f}-{d[-1, 0]:.2f}",
+                      fit["train_rms_deg"], fit["heldout_rms_deg"], fit["linear_heldout_rms_deg"],
+                      "yes" if fit["supported"] else "NO", wall])
+        if not fit["supported"]:
+            print(f"  {name}: {fit['support']}")
+    print("1. Identified on each log's first 75 % (by time), scored on its last 25 % (RMS, deg)")
+    print(table(rows1, ["log", "samples", "train t (s)", "held-out t (s)", "GBW train", "GBW held-out",
+                        "line held-out", "supported", "identify s"]))
+    print(f"GBW beats the line on {wins}/{len(logs)} held-out quarters; identify wall time median "
+          f"{statistics.median(walls):.1f} s, max {max(walls):.1f} s")
+
+    # 2. the other logs of the same condition, whole, from their first sample
+    rows2, wins2, n2 = [], 0, 0
+    for a in AMPLITUDES:
+        name = f"conf0_{a}.txt"
+        for other in AMPLITUDES:
+            if other == a:
                 continue
-            rms = predict_rms(cli, model, conf[test_a], tmp / "pred.csv")
-            rows.append([f"conf0 +-{train_a} deg", f"+-{test_a} deg", rms, line_rms(conf[train_a], conf[test_a]),
-                         fit["heldout_rms_deg"], wall])
-    print(table(rows, ["identified on", "predicted", "GBW RMS deg", "line RMS deg", "own held-out", "identify s"]))
-    # the published classic Bouc-Wen baseline: 0.txt, first 2000 rows, repeated rows dropped
-    base = to_csv(data / "0.txt", tmp / "zero.csv", 1, 3, max_rows=2000)
-    model = tmp / "model_zero.json"
-    assert cli(["identify", str(base), "-o", str(model), "--quiet", "--heldout", "0.25"]) == 0
-    fit = json.loads(model.read_text())["fit"]
-    full = predict_rms(cli, model, base, tmp / "pred0.csv")
+            d = logs[f"conf0_{other}.txt"]
+            pred = b.predict(name, d, f"conf0_{a}_on_{other}")
+            g, ln = rms(pred - d[:, 2]), rms(b.line(name, d[:, 1]) - d[:, 2])
+            late = d[:, 0] >= d[0, 0] + 1.0
+            g1 = rms(pred[late] - d[late, 2])
+            rows2.append([f"conf0 +-{a} deg", f"conf0 +-{other} deg (all {d.shape[0]})", g, g1, ln])
+            wins2 += g < ln
+            n2 += 1
+    for n in BENDS:
+        d = logs[f"{n}.txt"]
+        half = d[:, 0] < d[0, 0] + 0.5 * (d[-1, 0] - d[0, 0])
+        parts = {"first half": d[half], "second half": d[~half]}
+        for k, (which, part) in enumerate(parts.items()):
+            name = f"{n}_{k}"
+            b.identify(name, part)
+            other_name, other = list(parts.items())[1 - k]
+            pred = b.predict(name, other, f"{n}_{k}_on_other")
+            g, ln = rms(pred - other[:, 2]), rms(b.line(name, other[:, 1]) - other[:, 2])
+            late = other[:, 0] >= other[0, 0] + 1.0
+            rows2.append([f"{n}.txt {which}", f"{n}.txt {other_name} (all {other.shape[0]})", g,
+                          rms(pred[late] - other[late, 2]), ln])
+            wins2 += g < ln
+            n2 += 1
     print()
-    print(table([["0.txt first 2000 rows", full ** 2, fit["train_rms_deg"] ** 2, fit["heldout_rms_deg"] ** 2,
-                  "0.72-0.78 (classic BW, SLSQP/BFGS/NM), 3.1 (GA)"]],
-                ["log", "GBW MSE all", "GBW MSE train", "GBW MSE held-out", "published MSE deg^2"]))
+    print("2. Predicted on the other logs of the same condition, whole (z0 estimated from their first samples); "
+          "the line is fitted on the same training samples as the model (RMS, deg)")
+    print(table(rows2, ["identified on", "predicted (samples)", "GBW all", "GBW after 1 s", "line all"]))
+    print(f"GBW beats the line on {wins2}/{n2} other logs")
+
+    # 3. the published baseline's segment
+    seg = load(data / "0.txt", 1, 3, max_rows=2000)
+    fit, _ = b.identify("zero2000", seg)
+    pred = b.predict("zero2000", seg, "zero2000_self")
+    t = seg[:, 0]
+    train, held = t < fit["split_time_s"], t >= fit["split_time_s"]
+    late = t >= t[0] + 1.1
+    from warpbridge.model.boucwen import BoucWenParams, forward
+
+    p = BoucWenParams.from_dict(json.loads((tmp / "zero2000.json").read_text())["params"])
+    at_rest = forward(p, seg[:, 1])[0]
+    e, e0 = pred - seg[:, 2], at_rest - seg[:, 2]
+    print()
+    print(f"3. 0.txt, first 2000 rows ({seg.shape[0]} after merging repeated timestamps, t = {t[0]:.2f}-{t[-1]:.2f} s);"
+          " published classic Bouc-Wen MSE 0.72-0.78 deg^2 (SLSQP/BFGS/NM), 3.1 (GA)")
+    print(table([
+        ["training part", f"t < {fit['split_time_s']:.2f} s ({int(train.sum())})", float(np.mean(e[train] ** 2)),
+         float(np.mean(e0[train] ** 2))],
+        ["held-out part", f"t >= {fit['split_time_s']:.2f} s ({int(held.sum())})", float(np.mean(e[held] ** 2)),
+         float(np.mean(e0[held] ** 2))],
+        ["whole segment", f"all ({t.size})", float(np.mean(e ** 2)), float(np.mean(e0 ** 2))],
+        ["whole segment after 1.1 s", f"t >= {t[0] + 1.1:.2f} s ({int(late.sum())})", float(np.mean(e[late] ** 2)),
+         float(np.mean(e0[late] ** 2))],
+    ], ["part", "samples", "GBW MSE deg^2 (z0 estimated)", "GBW MSE deg^2 (z0 = 0)"]))
+    print(f"load average at end {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT)
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else default_dir())

@@ -3,9 +3,11 @@
 A global population search (differential evolution, in place of the paper's
 genetic algorithm) then a Nelder-Mead polish, on the forward output error:
 simulate warp from the logged tendon input and compare with the measured warp.
-The last part of the log is held out and only scored.
+The last part of the log is held out and only scored; the result says whether
+the model beats a straight line u -> w fitted on the same training samples
+there, and if not, why (``support_check``).
 
-Three things make this fast and robust:
+What makes this fast and robust:
 
 - Normalised units: w / Ws and (u - uc) / Us, so the search box is the same for
   any wing; the model's form is unchanged by this scaling (sgn(w) is kept).
@@ -14,9 +16,20 @@ Three things make this fast and robust:
   reversal, A and n, then the quadratic. With warp on one side of zero only four
   combinations of b are identifiable; two more are fitted when the log holds
   warp of both signs.
+- The initial state is not assumed: every candidate starts from the z its own
+  parameters give for the log's first samples (z is algebraic in u and w), so a
+  log that starts with the tendon loaded is fitted from its first sample.
 - Path compression: the model is rate independent, so its output at a kept
   sample depends only on the input's extrema before it. Keeping every reversal
   plus a decimated grid gives the same outputs at a fraction of the cost.
+- A cost bounded by the data, not by luck: an evaluation costs about one
+  sub-step per kept sample plus some tens per reversal, so the search scores on
+  at most ``SEARCH_POINTS`` samples and ``SEARCH_REVERSALS`` reversals and the
+  polish on at most ``max_fit_points`` and ``POLISH_REVERSALS`` (evenly spread
+  stretches of the training part, each started from its own first samples);
+  a candidate that needs more sub-steps than its budget is rejected instead of
+  being integrated for as long as a thousand ordinary ones; the search stops
+  when its population agrees within ``SEARCH_SPREAD``.
 
 Everything here is pure numerics; progress is reported through a callback.
 """
@@ -29,11 +42,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
 from scipy.optimize import differential_evolution, minimize
 
 from warpbridge.model import kernels as K
-from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
+from warpbridge.model._jit import njit, prange
+from warpbridge.model.boucwen import BoucWenParams, forward
+from warpbridge.model.initial_state import algebraic_z0_rows, estimate_z0
 
 log = logging.getLogger(__name__)
 
@@ -91,24 +105,41 @@ class Normaliser:
                              A=p.A * ws / us, n=n, b=tuple(x * ws / us ** (1.0 - n) for x in p.b))
 
 
-def theta_to_normalised(theta: np.ndarray, c: float = 0.0) -> BoucWenParams:
-    """Normalised Bouc-Wen parameters (az = 1) from the search vector; the quadratic in theta is
-    alpha1 (w - c)^2 + alpha2 (w - c) + alpha3."""
-    n = float(theta[0])
-    A = 10.0 ** float(theta[1])
-    p1 = A / (10.0 ** float(theta[2])) ** n
-    p3 = A / (10.0 ** float(theta[3])) ** n
-    p2 = math.sinh(float(theta[4])) * p1
-    p4 = math.sinh(float(theta[5])) * p3
-    d = math.sinh(float(theta[9])) * p1 if len(theta) > 9 else 0.0
-    e = math.sinh(float(theta[10])) * p1 if len(theta) > 10 else 0.0
-    b6 = (p1 + p2 + p3 + p4) / 4
-    b1 = (p1 - p2 + p3 - p4) / 4
+def thetas_to_rows(thetas: np.ndarray, c: float = 0.0) -> np.ndarray:
+    """Normalised Bouc-Wen parameters (az = 1), one ``BoucWenParams.to_array()`` row per search vector;
+    the quadratic in theta is alpha1 (w - c)^2 + alpha2 (w - c) + alpha3."""
+    th = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
+    n = th[:, 0]
+    A = 10.0 ** th[:, 1]
+    with np.errstate(over="ignore"):
+        p1 = A / (10.0 ** th[:, 2]) ** n
+        p3 = A / (10.0 ** th[:, 3]) ** n
+    p2 = np.sinh(th[:, 4]) * p1
+    p4 = np.sinh(th[:, 5]) * p3
+    d = np.sinh(th[:, 9]) * p1 if th.shape[1] > 9 else 0.0
+    e = np.sinh(th[:, 10]) * p1 if th.shape[1] > 10 else 0.0
     s = (p1 - p2 - p3 + p4) / 4
     t = (p1 + p2 - p3 - p4) / 4
-    b = ((b1, (s + d) / 2, (t + e) / 2, (s - d) / 2, (t - e) / 2, b6))
-    al1, al2, al3 = float(theta[6]), float(theta[7]), float(theta[8])
-    return BoucWenParams(a1=al1, a2=al2 - 2 * al1 * c, a3=al1 * c * c - al2 * c + al3, az=1.0, A=A, n=n, b=b)
+    al1, al2, al3 = th[:, 6], th[:, 7], th[:, 8]
+    P = np.empty((th.shape[0], K.N_PARAMS))
+    P[:, 0] = al1
+    P[:, 1] = al2 - 2 * al1 * c
+    P[:, 2] = al1 * c * c - al2 * c + al3
+    P[:, 3] = 1.0
+    P[:, 4] = A
+    P[:, 5] = n
+    P[:, 6] = (p1 - p2 + p3 - p4) / 4
+    P[:, 7] = (s + d) / 2
+    P[:, 8] = (t + e) / 2
+    P[:, 9] = (s - d) / 2
+    P[:, 10] = (t - e) / 2
+    P[:, 11] = (p1 + p2 + p3 + p4) / 4
+    return P
+
+
+def theta_to_normalised(theta: np.ndarray, c: float = 0.0) -> BoucWenParams:
+    """Normalised Bouc-Wen parameters (az = 1) from one search vector (see ``thetas_to_rows``)."""
+    return BoucWenParams.from_array(thetas_to_rows(theta, c)[0])
 
 
 def normalised_to_theta(q: BoucWenParams, two_sided: bool, c: float = 0.0) -> np.ndarray | None:
@@ -185,12 +216,19 @@ class IdentResult:
     w_pred: np.ndarray = field(repr=False)
     train_mask: np.ndarray = field(repr=False)
     heldout_mask: np.ndarray = field(repr=False)
+    z0: float = 0.0
+    trace: SearchTrace | None = field(default=None, repr=False)
+    support: Support | None = None
 
     def fit_dict(self) -> dict:
-        return {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
-                "linear_heldout_rms_deg": self.linear_heldout_rms, "n_train": self.n_train,
-                "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
-                "evaluations": self.evaluations, "method": "differential-evolution + nelder-mead"}
+        d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
+             "linear_heldout_rms_deg": self.linear_heldout_rms, "n_train": self.n_train,
+             "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
+             "evaluations": self.evaluations, "method": "differential-evolution + nelder-mead",
+             "z0_start_of_log": self.z0}
+        if self.support is not None:
+            d |= {"supported": self.support.supported, "support": self.support.reason}
+        return d
 
 
 def check_log(t: np.ndarray, u: np.ndarray, w: np.ndarray, min_samples: int = 50) -> None:
@@ -215,42 +253,221 @@ def warmup_end(u: np.ndarray, max_frac: float = 0.1) -> int:
     return min(first, int(max_frac * u.size))
 
 
+def linear_fit(u: np.ndarray, w: np.ndarray, train: np.ndarray) -> tuple[float, float]:
+    """(c0, c1) of the least-squares straight line w = c0 + c1 u on the training samples."""
+    c1, c0 = np.polyfit(u[train], w[train], 1)
+    return float(c0), float(c1)
+
+
 def linear_baseline(u: np.ndarray, w: np.ndarray, train: np.ndarray, held: np.ndarray) -> float:
     """Held-out RMS of a straight-line fit w = c0 + c1 u on the training part."""
-    c1, c0 = np.polyfit(u[train], w[train], 1)
+    c0, c1 = linear_fit(u, w, train)
     e = w[held] - (c0 + c1 * u[held])
     return float(np.sqrt(np.mean(e ** 2)))
 
 
+def turning_points(u: np.ndarray, frac: float = 0.05) -> int:
+    """Reversals of u after which it moves back by at least ``frac`` of its span (jitter does not count)."""
+    u = np.asarray(u, dtype=np.float64)
+    thr = frac * float(np.ptp(u)) if u.size else 0.0
+    if not thr > 0:
+        return 0
+    count, direction = 0, 0
+    lo = hi = float(u[0])
+    for x in u.tolist():
+        if direction == 0:
+            lo, hi = min(lo, x), max(hi, x)
+            if x - lo >= thr:
+                direction, hi = 1, x
+            elif hi - x >= thr:
+                direction, lo = -1, x
+        elif direction == 1:
+            if x > hi:
+                hi = x
+            elif hi - x >= thr:
+                count, direction, lo = count + 1, -1, x
+        else:
+            if x < lo:
+                lo = x
+            elif x - lo >= thr:
+                count, direction, hi = count + 1, 1, x
+    return count
+
+
+@dataclass(frozen=True)
+class Support:
+    """Whether a log supports the identified model: it must beat a straight line on the held-out part."""
+
+    supported: bool
+    reason: str
+
+
+MIN_TURNING_POINTS = 4  # reversals (5 % of the span or more) the training part needs to pin the loop down
+
+
+def support_check(t: np.ndarray, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray, train: np.ndarray,
+                  held: np.ndarray, noise: float) -> Support:
+    """Does the model beat the best straight line u -> w (fitted on the same training samples) on the
+    held-out samples? If not, the likeliest reason in one line: too little excitation, a held-out
+    input beyond the training range, a warp that drifts, or hysteresis the data do not show."""
+    if not held.any():
+        return Support(False, "no held-out samples to judge the model on")
+    c0, c1 = linear_fit(u, w, train)
+    rms = float(np.sqrt(np.mean((w_pred[held] - w[held]) ** 2)))
+    line = float(np.sqrt(np.mean((c0 + c1 * u[held] - w[held]) ** 2)))
+    score = f"held-out RMS {rms:.3g} deg against {line:.3g} deg for a straight line"
+    if rms < line:
+        return Support(True, f"the model beats a straight line on the held-out part ({score})")
+    reasons = []
+    k = turning_points(u[train])
+    if k < MIN_TURNING_POINTS:
+        reasons.append(f"too little excitation: the tendon input turns back only {k} times in the training part "
+                       f"(at least {MIN_TURNING_POINTS} needed)")
+    lo, hi = float(np.min(u[train])), float(np.max(u[train]))
+    margin = 0.02 * (hi - lo)
+    out = float(np.mean((u[held] < lo - margin) | (u[held] > hi + margin)))
+    if out > 0.05:
+        reasons.append(f"the held-out part drives the tendon beyond the training range ({out:.0%} of its samples): "
+                       "the model would extrapolate")
+    r = w - w_pred
+    shift = float(np.mean(r[held]) - np.mean(r[train]))
+    floor = 3.0 * noise if math.isfinite(noise) else 0.0
+    if abs(shift) > max(floor, 0.5 * rms):
+        reasons.append(f"the warp drifts: the held-out residual is offset by {shift:+.3g} deg from the training "
+                       "part's (sensor zero drift, or the rig changed during the log)")
+    if not reasons:
+        fit = float(np.sqrt(np.mean((w_pred[train] - w[train]) ** 2)))
+        line_fit = float(np.sqrt(np.mean((c0 + c1 * u[train] - w[train]) ** 2)))
+        if fit >= 0.9 * line_fit:
+            reasons.append("the data show no hysteresis the model can use: it fits the training part no better "
+                           f"than a line ({fit:.3g} against {line_fit:.3g} deg)")
+        else:
+            reasons.append(f"the held-out part behaves differently from the training part ({rms:.3g} deg RMS "
+                           f"there against {fit:.3g} deg on the training part): the rig changed during the log, "
+                           "or the training part does not show what the held-out part does")
+    return Support(False, "the data do not support the model: " + "; ".join(reasons) + f" ({score})")
+
+
 # ---- the search ------------------------------------------------------------------------------
 
-class _Objective:
-    """Mean squared forward output error on the compressed training path (normalised units)."""
+FIT_TOL_Z = 1e-6  # local error per sub-step while fitting (normalised z: a millionth of the tendon half-range)
+BUDGET_PER_POINT = 40  # sub-steps an evaluation may spend per kept sample ...
+BUDGET_PER_REVERSAL = 1000  # ... and per reversal (a whole transition between saturations takes 100-250)
+SEARCH_POINTS, SEARCH_REVERSALS = 1200, 60  # what one candidate of the global search is scored on, at most
+POLISH_REVERSALS = 120  # the polish scores on at most this many reversals (and ``max_fit_points`` samples)
+STRETCHES = 4  # when a log holds more, evenly spread stretches of it
+SEARCH_SPREAD = 0.01  # the search stops once its population's costs agree within this (std / mean)
+START_SAMPLES = 25  # raw samples given to the algebraic initial state of a stretch
 
-    def __init__(self, u_hat: np.ndarray, w_hat: np.ndarray, weight: np.ndarray, c: float = 0.0) -> None:
+
+def fit_stretches(u: np.ndarray, n_end: int, max_reversals: int, pieces: int = STRETCHES) -> list[tuple[int, int]]:
+    """Raw sample ranges [a, b) of u[:n_end] to score on: all of it when it holds at most
+    ``max_reversals`` reversals, else ``pieces`` evenly spaced stretches that hold that many together.
+
+    The Bouc-Wen state is (w, z) and z follows from u and w, so each stretch starts from the state
+    its own first samples imply: a fit's cost is bounded by these limits, not by the log."""
+    rev = reversal_indices(u[:n_end])
+    if rev.size <= max_reversals:
+        return [(0, n_end)]
+    per = max(1, max_reversals // pieces)
+    out = []
+    for j in range(pieces):
+        a = int(j * n_end / pieces)
+        nxt = int((j + 1) * n_end / pieces)
+        k = int(np.searchsorted(rev, a, side="right"))
+        b = int(rev[k + per]) if k + per < rev.size else n_end
+        out.append((a, max(a + 2, min(b, nxt))))
+    return out
+
+
+@dataclass
+class FitPath:
+    """Stretches of the compressed training path (normalised units), concatenated; ``offsets`` bound them."""
+
+    u: np.ndarray
+    w: np.ndarray
+    weight: np.ndarray
+    offsets: np.ndarray
+    starts: list[tuple[np.ndarray, np.ndarray]]
+    budgets: np.ndarray
+
+    @classmethod
+    def build(cls, u_hat: np.ndarray, w_hat: np.ndarray, n_end: int, max_points: int,
+              max_reversals: int) -> FitPath:
+        ranges = fit_stretches(u_hat, n_end, max_reversals)
+        span = sum(b - a for a, b in ranges)
+        keep_every = max(1, int(math.ceil(span / max_points)))
+        us, ws, wts, offs, starts, budgets = [], [], [], [0], [], []
+        for a, b in ranges:
+            idx = compress_path(u_hat[a:b], keep_every)
+            wt = np.zeros(idx.size)
+            wt[idx % keep_every == 0] = 1.0
+            us.append(u_hat[a:b][idx])
+            ws.append(w_hat[a:b][idx])
+            wts.append(wt)
+            offs.append(offs[-1] + idx.size)
+            starts.append((u_hat[a:min(b, a + START_SAMPLES)], w_hat[a:min(b, a + START_SAMPLES)]))
+            budgets.append(BUDGET_PER_POINT * idx.size + BUDGET_PER_REVERSAL * (reversal_indices(us[-1]).size + 1))
+        return cls(np.concatenate(us), np.concatenate(ws), np.concatenate(wts), np.array(offs, dtype=np.int64),
+                   starts, np.array(budgets, dtype=np.int64))
+
+    @property
+    def reversals(self) -> int:
+        return int(sum(reversal_indices(self.u[a:b]).size for a, b in zip(self.offsets[:-1], self.offsets[1:],
+                                                                           strict=True)))
+
+
+def rest_warp_rows(P: np.ndarray, u0: float, z0: np.ndarray) -> np.ndarray:
+    """Per row of P: the warp at which the model holding state z0 outputs u0 (rising root of the quadratic)."""
+    a1, a2 = P[:, 0], P[:, 1]
+    c = P[:, 2] + P[:, 3] * z0 - u0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disc = a2 * a2 - 4.0 * a1 * c
+        r = np.sqrt(np.maximum(disc, 0.0))
+        lin = -c / a2
+        root1 = (-a2 + r) / (2.0 * a1)
+        root2 = (-a2 - r) / (2.0 * a1)
+        quad = np.where(2.0 * a1 * root1 + a2 > 0, root1, np.where(2.0 * a1 * root2 + a2 > 0, root2, root1))
+        quad = np.where(disc < 0, -a2 / (2.0 * a1), quad)
+    return np.where(np.abs(a1) < 1e-15, lin, quad)
+
+
+class _Objective:
+    """Mean squared forward output error on a ``FitPath`` (normalised units).
+
+    Every candidate starts each stretch from the state that stretch's first samples imply for it
+    (``algebraic_z0``), and may spend at most a budget of sub-steps: a parameter set that needs
+    more is no model of a wing (a state stuck where it is unstable, or a saturation far stiffer
+    than the data) and is rejected at a bounded cost instead of a thousand ordinary evaluations'."""
+
+    def __init__(self, path: FitPath, c: float = 0.0, tol: float = FIT_TOL_Z) -> None:
+        self.path = path
         self.c = c
-        self.u = np.ascontiguousarray(u_hat)
-        self.w = np.ascontiguousarray(w_hat)
-        self.weight = np.ascontiguousarray(weight)
-        self.wsum = float(weight.sum())
+        self.wsum = float(path.weight.sum())
+        self.tol = float(tol)
         self.calls = 0
 
     def params_matrix(self, thetas: np.ndarray) -> np.ndarray:
-        P = np.empty((thetas.shape[0], K.N_PARAMS))
-        for i, th in enumerate(thetas):
-            P[i] = theta_to_normalised(th, self.c).to_array()
-        return P
+        return thetas_to_rows(thetas, self.c)
 
-    def start(self, P_row: np.ndarray) -> float:
-        q = BoucWenParams.from_array(P_row)
-        return rest_warp(q, float(self.u[0]))
+    def start(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(w0, z0), one column per stretch: the state its first samples imply, consistent with its first u."""
+        m = len(self.path.starts)
+        W0, Z0 = np.empty((P.shape[0], m)), np.empty((P.shape[0], m))
+        for j, (us, ws) in enumerate(self.path.starts):
+            z0 = algebraic_z0_rows(P, us, ws)
+            Z0[:, j] = np.where(np.isfinite(z0), z0, 0.0)
+            W0[:, j] = rest_warp_rows(P, float(us[0]), Z0[:, j])
+        return W0, Z0
 
     def many(self, thetas: np.ndarray) -> np.ndarray:
         """Vectorised cost for DE: thetas has shape (S, N)."""
         P = self.params_matrix(thetas)
         out = np.empty(P.shape[0])
-        w0 = np.array([self.start(P[i]) for i in range(P.shape[0])])  # each member starts at rest
-        _sse_rows(P, self.u, self.w, self.weight, w0, out)
+        W0, Z0 = self.start(P)
+        pa = self.path
+        rows = _sse_rows if P.shape[0] >= 4 else _sse_rows_serial
+        rows(P, pa.u, pa.w, pa.weight, pa.offsets, W0, Z0, pa.budgets, self.tol, out)
         self.calls += P.shape[0]
         out = out / self.wsum
         out[~np.isfinite(out)] = 1e6
@@ -260,10 +477,40 @@ class _Objective:
         return float(self.many(theta[None, :])[0])
 
 
+@njit(cache=True)
+def _sse_row(p, u, w, weight, offsets, w0, z0, budgets, tol) -> float:
+    s = 0.0
+    for j in range(offsets.shape[0] - 1):
+        a, b = offsets[j], offsets[j + 1]
+        s += K.forward_sse_budget(p, u[a:b], w[a:b], weight[a:b], w0[j], z0[j], budgets[j], tol)
+        if not s < np.inf:
+            break
+    return s
+
+
 @njit(cache=True, parallel=True)
-def _sse_rows(P, u, w, weight, w0, out):
+def _sse_rows(P, u, w, weight, offsets, W0, Z0, budgets, tol, out):
     for i in prange(P.shape[0]):
-        out[i] = K.forward_sse(P[i], u, w, weight, w0[i], 0.0)
+        out[i] = _sse_row(P[i], u, w, weight, offsets, W0[i], Z0[i], budgets, tol)
+
+
+@njit(cache=True)
+def _sse_rows_serial(P, u, w, weight, offsets, W0, Z0, budgets, tol, out):
+    """One candidate at a time (the polish): a parallel region per evaluation would wait for a second
+    thread to be scheduled, which on a busy machine costs more than the evaluation."""
+    for i in range(P.shape[0]):
+        out[i] = _sse_row(P[i], u, w, weight, offsets, W0[i], Z0[i], budgets, tol)
+
+
+@dataclass
+class SearchTrace:
+    """How the search went: generations run, best cost per generation, polish iterations."""
+
+    generations: int = 0
+    best: list[float] = field(default_factory=list)
+    spread: list[float] = field(default_factory=list)
+    polish_iterations: int = 0
+    stopped_early: bool = False
 
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
@@ -275,7 +522,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     ``t`` s, ``u`` mm, ``w`` deg, cleaned (finite, t strictly increasing). The last
     ``heldout_frac`` of the log (by time) is held out. ``prior`` (default: the
     paper's parameters) seeds one member of the population. ``progress(stage, i, n)``
-    is called once per DE generation and every 100 polish evaluations."""
+    is called once per DE generation and every 20 polish iterations."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
@@ -291,34 +538,37 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     n = t.size
     split_time = float(t[0] + (1.0 - heldout_frac) * (t[-1] - t[0]))
     n_train_end = int(np.searchsorted(t, split_time))
-    start = warmup_end(u[:n_train_end])
     train_mask = np.zeros(n, bool)
-    train_mask[start:n_train_end] = True
+    train_mask[:n_train_end] = True
     held_mask = np.zeros(n, bool)
     held_mask[n_train_end:] = True
 
-    # compressed training path: the model only needs reversals and a coarse grid
-    keep_every = max(1, int(math.ceil((n_train_end - start) / max_fit_points)))
-    idx = compress_path(u[:n_train_end], keep_every)
-    weight = np.zeros(idx.size)
-    on_grid = (idx % keep_every == 0) & (idx >= start)
-    weight[on_grid] = 1.0
-    obj = _Objective(u_hat[idx], w_hat[idx], weight, norm.c)
+    # compressed training path: the model only needs reversals and a coarse grid; every candidate
+    # starts from the state the first samples imply for it, so the whole training part is scored.
+    # The global search scores on a bounded part of it, the polish on a larger one.
+    search = _Objective(FitPath.build(u_hat, w_hat, n_train_end, min(SEARCH_POINTS, max_fit_points),
+                                      SEARCH_REVERSALS), norm.c)
+    obj = _Objective(FitPath.build(u_hat, w_hat, n_train_end, max_fit_points, POLISH_REVERSALS), norm.c)
 
     prior = prior if prior is not None else BoucWenParams.paper()
     x0 = normalised_to_theta(norm.to_normalised(prior), two_sided, norm.c)
     if x0 is not None:
         x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
-    gens = [0]
+    trace = SearchTrace()
 
-    def _cb(*_a, **_k):
-        gens[0] += 1
+    def _cb(intermediate_result=None):
+        trace.generations += 1
+        if intermediate_result is not None:
+            trace.best.append(float(intermediate_result.fun))
         if progress:
-            progress("search", gens[0], maxiter)
+            progress("search", trace.generations, maxiter)
+        if intermediate_result is not None:
+            e = np.asarray(intermediate_result.population_energies)
+            trace.spread.append(float(np.std(e) / max(abs(float(np.mean(e))), 1e-300)))
         return False
 
     de = differential_evolution(
-        lambda X: obj.many(np.atleast_2d(X.T)), bounds, popsize=popsize, maxiter=maxiter, tol=1e-7,
+        lambda X: search.many(np.atleast_2d(X.T)), bounds, popsize=popsize, maxiter=maxiter, tol=SEARCH_SPREAD,
         atol=0.0, mutation=(0.5, 1.0), recombination=0.9, seed=seed, polish=False, init="latinhypercube",
         updating="deferred", vectorized=True, x0=x0, callback=_cb)
     lo = np.array([b[0] for b in bounds])
@@ -328,24 +578,29 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         pen = float(np.sum(np.maximum(th - hi, 0) + np.maximum(lo - th, 0)))
         return obj.one(np.clip(th, lo, hi)) + 10.0 * pen
 
-    evals = [0]
-
     def _nm_cb(_xk):
-        evals[0] += 1
-        if progress and evals[0] % 20 == 0:
-            progress("polish", min(evals[0], polish_evals), polish_evals)
+        trace.polish_iterations += 1
+        if progress and trace.polish_iterations % 20 == 0:
+            progress("polish", min(trace.polish_iterations, polish_evals), polish_evals)
 
-    nm = minimize(clipped, de.x, method="Nelder-Mead", callback=_nm_cb,
+    # the polish starts from whichever of the search's five best is best on the polish's data
+    top = np.asarray(de.population)[np.argsort(de.population_energies)[:5]]
+    costs = obj.many(top)
+    x_start, f_start = top[int(np.argmin(costs))], float(np.min(costs))
+    nm = minimize(clipped, x_start, method="Nelder-Mead", callback=_nm_cb,
                   options={"maxfev": polish_evals, "xatol": 1e-7, "fatol": 1e-14, "adaptive": True})
-    best = np.clip(nm.x if nm.fun <= de.fun else de.x, lo, hi)
+    best = np.clip(nm.x if nm.fun <= f_start else x_start, lo, hi)
     params = norm.to_physical(theta_to_normalised(best, norm.c))
 
-    w_pred, _, _ = forward(params, u)
+    z0 = estimate_z0(params, u[:n_train_end], w[:n_train_end])
+    w_pred, _, _ = forward(params, u, z0=z0)
     err = w_pred - w
     train_rms = float(np.sqrt(np.mean(err[train_mask] ** 2)))
     held_rms = float(np.sqrt(np.mean(err[held_mask] ** 2))) if held_mask.any() else float("nan")
+    noise = noise_floor(w)
     return IdentResult(
-        params=params, train_rms=train_rms, heldout_rms=held_rms, noise=noise_floor(w),
+        params=params, train_rms=train_rms, heldout_rms=held_rms, noise=noise,
         linear_heldout_rms=linear_baseline(u, w, train_mask, held_mask), n_train=int(train_mask.sum()),
-        n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=obj.calls, split_time=split_time,
-        w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask)
+        n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=search.calls + obj.calls,
+        split_time=split_time, w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask, z0=z0, trace=trace,
+        support=support_check(t, u, w, w_pred, train_mask, held_mask, noise))

@@ -65,6 +65,36 @@ def algebraic_z0(params: BoucWenParams, u, w) -> float:
     return float(np.clip(np.median(z), lo, hi))
 
 
+def algebraic_z0_rows(P: np.ndarray, u, w) -> np.ndarray:
+    """``algebraic_z0`` for many parameter sets at once: P has one ``BoucWenParams.to_array()``
+    layout per row (a1 a2 a3 az A n b1..b6). What a global search uses to start every candidate
+    from the state the log's first samples imply."""
+    P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+    u = np.asarray(u, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    k = _quiet_start(u)
+    uk, wk = u[:k], w[:k]
+    ok = np.isfinite(uk) & np.isfinite(wk)
+    if not ok.any():
+        return np.zeros(P.shape[0])
+    uk, wk = uk[ok], wk[ok]
+    a1, a2, a3, az = P[:, 0:1], P[:, 1:2], P[:, 2:3], P[:, 3:4]
+    z = np.median((uk[None, :] - a1 * wk * wk - a2 * wk - a3) / az, axis=1)
+    sw = 1.0 if float(np.median(wk)) >= 0 else -1.0
+    A, n, b = P[:, 4], P[:, 5], P[:, 6:12]
+
+    def psi(sdw: float, sz: float) -> np.ndarray:
+        return (b[:, 0] * sdw * sz + b[:, 1] * sw * sdw + b[:, 2] * sw * sz + b[:, 3] * sdw + b[:, 4] * sz
+                + b[:, 5] * sw)
+
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        p_up, p_down = psi(1.0, 1.0), psi(-1.0, -1.0)
+        hi = np.where(p_up > 0, (A / np.where(p_up > 0, p_up, 1.0)) ** (1.0 / n), np.inf)
+        lo = np.where(p_down > 0, -(A / np.where(p_down > 0, p_down, 1.0)) ** (1.0 / n), -np.inf)
+    # the band is [lo, hi] as z_saturation orders it (a model may have them the other way round)
+    return np.clip(z, np.minimum(lo, hi), np.maximum(lo, hi))
+
+
 def estimate_z0(params: BoucWenParams, u, w, *,
                 simulate: Callable[[float, int], np.ndarray] | None = None,
                 opening: int | None = None) -> float:
@@ -121,3 +151,23 @@ def estimate_z0(params: BoucWenParams, u, w, *,
         if f < c_best:
             z_best, c_best = x, f
     return float(z_best)
+
+
+def estimate_plant_z0(plant, t, u, w, airspeed=None, *, opening: int | None = None) -> float:
+    """``estimate_z0`` for a ``model.plant.Plant`` with effects: the algebraic value from the core
+    model on the input the sheath sees, refined by simulating the whole effects chain."""
+    from warpbridge.model.effects import apply_input_effects
+
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    if u.size == 0:
+        return 0.0
+    if not plant.effects.active():
+        return estimate_z0(plant.params, u, w, opening=opening)
+    a = None if airspeed is None else np.asarray(airspeed, dtype=np.float64)
+
+    def simulate(z0: float, m: int) -> np.ndarray:
+        return plant.simulate(t[:m], u[:m], None if a is None else a[:m], z0=z0)[1]
+
+    x = apply_input_effects(plant.effects, t, u)
+    return estimate_z0(plant.core_params(), x, w, simulate=simulate, opening=opening)

@@ -107,13 +107,13 @@ def dz_dw(p, z: float, sdw: float, sw: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def _rk4_limit(jac: float, f: float, h: float) -> float:
-    """Longest RK4 step up to h with h J <= K_STIFF and local error (h J)^5 / 120 |f| / J <= TOL_Z."""
+def _rk4_limit(jac: float, f: float, h: float, tol: float) -> float:
+    """Longest RK4 step up to h with h J <= K_STIFF and local error (h J)^5 / 120 |f| / J <= tol."""
     if h * jac > K_STIFF:
         h = K_STIFF / jac
     x = h * jac
-    if f > 0.0 and x * x * x * x * x * f > 120.0 * TOL_Z * jac:
-        h = _pow_n(120.0 * TOL_Z * jac / f, 0.2) / jac
+    if f > 0.0 and x * x * x * x * x * f > 120.0 * tol * jac:
+        h = _pow_n(120.0 * tol * jac / f, 0.2) / jac
     return h
 
 
@@ -130,18 +130,39 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
     """``integrate_z`` carrying zn = |z|^n (-1 when not known): returns (z, zn) at w1, taking
     ``zn0`` = |z0|^n if already known. Powers are the kernels' costliest operation; the value at
     the end of a step is carried from the nearest stage by ``_carry_pow`` (exact to rounding)."""
+    z, zc, _, _, _, _ = _march(p, w0, z0, zn0, w1, MAX_SUBSTEPS, TOL_Z)
+    return z, zc
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: float):
+    """The greedy sub-step march from (w0, z0) to w1, at most ``max_steps`` sub-steps of local
+    error at most ``tol``.
+
+    Returns (z, zn, wm, zm, znm, steps): the state at w1 (NaN if diverged or out of
+    steps), the start (wm, zm, znm) of the march's last sub-step, and the sub-steps
+    taken. Every sub-step before (wm, zm) was sized without regard to w1, so a
+    march from w0 to any w1' beyond wm passes through (wm, zm) bit for bit and
+    may resume there: the forward solve's iterations do, instead of integrating
+    from the sample's start again each time."""
+    wm = w0
+    zm = z0
+    znm = zn0
     if not (w1 == w1) or w1 == w0:
-        return z0, zn0
+        return z0, zn0, wm, zm, znm, 0
     sdw = 1.0 if w1 > w0 else -1.0
     n = p[P_N]
     A = p[P_A]
     w = w0
     z = z0
     zc = zn0  # |z|^n if known
-    for _ in range(MAX_SUBSTEPS):
+    for step in range(max_steps):
         remaining = (w1 - w) * sdw
         if remaining <= 0.0:
-            return z, zc
+            return z, zc, wm, zm, znm, step
+        wm = w
+        zm = z
+        znm = zc
         # Step size from the local error of RK4 on the linearised ODE,
         # err ~ (h J)^5 / 120 * |f| / J with J = |df/dz|, and h J <= K_STIFF for stability;
         # where z rests near saturation an L-stable step is taken instead.
@@ -170,13 +191,13 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
             jac = abs(js)
             if jac > 0.0:
                 f = abs(k1)
-                h_rk = _rk4_limit(jac, f, h)
+                h_rk = _rk4_limit(jac, f, h, tol)
                 if js < 0.0 and h * f <= 0.05 * az:
                     # z rests near its saturation: an L-stable linearly implicit Euler step
                     # (error ~ h^2 J |f| / 2) goes further than RK4 may, or as far for one power
                     # instead of three (not where z changes much relative to itself, near 0: there
                     # the linear error model misses the curvature of |z|^n)
-                    h_be = h if h * h * jac * f <= 2.0 * TOL_Z else math.sqrt(2.0 * TOL_Z / (jac * f))
+                    h_be = h if h * h * jac * f <= 2.0 * tol else math.sqrt(2.0 * tol / (jac * f))
                     if h_be >= h_rk:
                         h = h_be
                         implicit = True
@@ -203,7 +224,7 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
                 je = n * zne / aze * abs(psie)
                 if je == 0.0:
                     break
-                h_lim = _rk4_limit(je, max(abs(k1), abs(A - zne * psie)), h)
+                h_lim = _rk4_limit(je, max(abs(k1), abs(A - zne * psie)), h, tol)
                 if h <= h_lim:
                     break
                 h = h_lim
@@ -217,12 +238,12 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
             f = abs(k1)
             f2 = abs((n - 1.0) * inv_z * js)
             d3 = jac * jac * f + f2 * f * f
-            if h * h * h * d3 <= 3.0 * TOL_Z:
+            if h * h * h * d3 <= 3.0 * tol:
                 order = 2
             else:
                 f3 = abs((n - 2.0) * inv_z) * f2
                 d4 = jac * jac * jac * f + 4.0 * f2 * jac * f * f + f3 * f * f * f
-                if h * h * h * h * d4 <= 12.0 * TOL_Z:
+                if h * h * h * h * d4 <= 12.0 * tol:
                     order = 3
         if implicit:
             z_new = z + hs * k1 / (1.0 - h * js)
@@ -251,13 +272,13 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
         if z == 0.0:
             zc = 0.0
         if not (abs(z) < Z_CAP):
-            return np.nan, -1.0
+            return np.nan, -1.0, wm, zm, znm, step + 1
         if last:
-            return z, zc
+            return z, zc, wm, zm, znm, step + 1
         w = w + hs
         if (w1 - w) * sdw <= 0.0:
-            return z, zc
-    return np.nan, -1.0  # too stiff to integrate: treat as diverged
+            return z, zc, wm, zm, znm, step + 1
+    return np.nan, -1.0, wm, zm, znm, max_steps  # too stiff to integrate: treat as diverged
 
 
 @njit(cache=True, inline="always")
@@ -323,12 +344,25 @@ def forward_step(p, w0: float, z0: float, u: float):
 def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
     """``forward_step`` that also takes and returns zn = |z|^n (-1 when not known): a run of
     samples carries it, saving one power per sample. Returns (w, z, zn, status)."""
+    w, z, zn, st, _ = _forward_solve(p, w0, z0, zn0, u, -1, TOL_Z)
+    return w, z, zn, st
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, tol: float):
+    """``forward_step_zn`` within a budget of sub-steps (-1: none beyond MAX_SUBSTEPS per march), with
+    local error ``tol`` per sub-step.
+
+    Returns (w, z, zn, status, substeps); status 3 when the budget ran out. Each
+    iteration resumes the march from the last sub-step below the bracket's lower
+    end instead of the sample's start, so a sample costs about one march over its
+    interval however many iterations the solve takes."""
     if not (u == u):
-        return w0, z0, zn0, 0
+        return w0, z0, zn0, 0, 0
     u0 = output_u(p, w0, z0)
     du = u - u0
     if du == 0.0:
-        return w0, z0, zn0, 0
+        return w0, z0, zn0, 0, 0
     sdw = 1.0 if du > 0.0 else -1.0
     scale = abs(p[P_A2]) + abs(p[P_AZ] * p[P_A]) + 1e-12
     tol_u = 1e-13 * (abs(u) + scale)
@@ -343,6 +377,11 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
     lo = w0  # G(lo)*sdw < 0
     hi = np.nan  # G(hi)*sdw > 0 once known
     lo_z = z0
+    # where the march to lo may resume (bit for bit the march from w0 up to there)
+    rw = w0
+    rz = z0
+    rzn = azn
+    used = 0
     # second-order guess: u(w0 + d) ~ u0 + D d + D' d^2 / 2
     inv_d0 = 1.0 / d0
     step = du * inv_d0
@@ -357,8 +396,14 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
     best_z = z0
     status = 0
     for _ in range(100):
-        z, zc = integrate_z_from(p, w0, z0, azn, w)
+        cap = MAX_SUBSTEPS if budget < 0 else min(MAX_SUBSTEPS, budget - used)
+        if cap <= 0:
+            return best_w, best_z, -1.0, 3, used
+        z, zc, mw, mz, mzn, taken = _march(p, rw, rz, rzn, w, cap, tol)
+        used += taken
         if not (z == z):
+            if budget >= 0 and used >= budget:
+                return best_w, best_z, -1.0, 3, used
             # diverged on the way: shrink toward lo
             hi = w
             w = 0.5 * (lo + hi)
@@ -367,7 +412,7 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
         g = output_u(p, w, z) - u
         zn_w = zc if zc >= 0.0 else (_pow_n(abs(z), p[P_N]) if z != 0.0 else 0.0)
         if abs(g) <= tol_u:
-            return w, z, zn_w, 0
+            return w, z, zn_w, 0, used
         f_end = p[P_A] - zn_w * _psi(p, sdw, _sgn(w) if w != 0.0 else sdw, _sgn(z))
         d = 2.0 * p[P_A1] * w + p[P_A2] + p[P_AZ] * f_end
         if g * sdw < 0.0:
@@ -378,6 +423,7 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
             else:
                 lo = w
                 lo_z = z
+                rw, rz, rzn = mw, mz, mzn
         else:
             hi = w
         best_w = lo
@@ -390,7 +436,7 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
                 hi != hi or ((wn - lo) * sdw > 0.0 and (hi - wn) * sdw > 0.0)):
             # a move this small needs no sub-steps: Euler error ~ (wn - w)^2 * |df/dw|
             z_new = z + f_end * (wn - w)
-            return wn, z_new, (0.0 if z_new == 0.0 else _carry_pow(z, zn_w, z_new, p[P_N])), 0
+            return wn, z_new, (0.0 if z_new == 0.0 else _carry_pow(z, zn_w, z_new, p[P_N])), 0, used
         if hi == hi:
             inside = wn == wn and (wn - lo) * sdw > 0.0 and (hi - wn) * sdw > 0.0
             if not inside or status == 1:
@@ -403,16 +449,21 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
             # find where du/dw vanishes: bisect on the slope instead of g
             for _ in range(80):
                 wm = 0.5 * (lo + hi)
-                zm = integrate_z(p, w0, z0, wm)
+                cap = MAX_SUBSTEPS if budget < 0 else min(MAX_SUBSTEPS, budget - used)
+                if cap <= 0:
+                    return lo, lo_z, -1.0, 3, used
+                zm, _, mw, mz, mzn, taken = _march(p, rw, rz, rzn, wm, cap, tol)
+                used += taken
                 if zm == zm and slope_du_dw(p, wm, zm, sdw) > 0.0 and (output_u(p, wm, zm) - u) * sdw < 0.0:
                     lo = wm
                     lo_z = zm
+                    rw, rz, rzn = mw, mz, mzn
                 else:
                     hi = wm
                 if abs(hi - lo) <= 1e-13 * (abs(lo) + 1.0):
                     break
-            return lo, lo_z, -1.0, 1
-    return best_w, best_z, -1.0, status
+            return lo, lo_z, -1.0, 1, used
+    return best_w, best_z, -1.0, status, used
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
@@ -443,6 +494,31 @@ def forward_sse(p, u, w_meas, weight, w0: float, z0: float) -> float:
     for k in range(u.shape[0]):
         w, z, zn, st = forward_step_zn(p, wp, zp, zn, u[k])
         if st != 0:  # diverged, or u beyond the model's monotone range: not a candidate
+            return np.inf
+        wp = w
+        zp = z
+        e = w - w_meas[k]
+        sse += weight[k] * e * e
+    return sse
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def forward_sse_budget(p, u, w_meas, weight, w0: float, z0: float, budget: int, tol: float):
+    """``forward_sse`` within a total budget of sub-steps of local error ``tol``: inf when the
+    parameter set needs more.
+
+    A global search meets parameter sets that are not models of any wing (a state stuck
+    where it is unstable, a saturation far stiffer than the data): without a budget each
+    can cost a thousand ordinary ones before it is found to diverge."""
+    sse = 0.0
+    wp = w0
+    zp = z0
+    zn = -1.0
+    used = 0
+    for k in range(u.shape[0]):
+        w, z, zn, st, taken = _forward_solve(p, wp, zp, zn, u[k], budget - used, tol)
+        used += taken
+        if st != 0:
             return np.inf
         wp = w
         zp = z

@@ -43,12 +43,16 @@ def test_predict_writes_t_and_warp_pred_matching_the_log(workdir):
 
 
 def test_model_file_round_trips_through_predict(workdir):
-    # a model with effects: predict applies them (delay shifts the prediction)
+    # a model with effects: predict applies them (delay shifts the prediction); a log without warp
+    # starts both from the model file's z0, so the shift is exact
+    log = np.loadtxt(workdir / "check.csv", delimiter=",", skiprows=1)
+    np.savetxt(workdir / "inputs.csv", log[:, :2], delimiter=",", header="t,u", comments="", fmt="%.9g")
     m = json.loads((workdir / "model.json").read_text())
     m["effects"] = {"delay": {"delay_s": 0.2}}
     (workdir / "delayed.json").write_text(json.dumps(m))
-    assert run("predict", workdir / "check.csv", "--model", workdir / "delayed.json", "-o", workdir / "p2.csv") == 0
-    a = np.loadtxt(workdir / "pred.csv", delimiter=",", skiprows=1)[:, 1]
+    assert run("predict", workdir / "inputs.csv", "--model", workdir / "model.json", "-o", workdir / "p1.csv") == 0
+    assert run("predict", workdir / "inputs.csv", "--model", workdir / "delayed.json", "-o", workdir / "p2.csv") == 0
+    a = np.loadtxt(workdir / "p1.csv", delimiter=",", skiprows=1)[:, 1]
     b = np.loadtxt(workdir / "p2.csv", delimiter=",", skiprows=1)[:, 1]
     assert np.allclose(b[40:], a[:-40], atol=1e-6)  # 0.2 s at 200 Hz
 
@@ -112,3 +116,80 @@ def test_bad_models_get_a_one_line_error(content, needle, workdir, tmp_path, cap
 def test_missing_files_are_reported_not_raised(tmp_path, capsys):
     assert run("identify", tmp_path / "nope.csv", "-o", tmp_path / "m.json") != 0
     assert "no such file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [
+    ["identify", "{log}", "-o", "{missing}/m.json", "--quiet"],
+    ["identify", "{log}", "-o", "{tmp}/m.json", "--plot", "{missing}/fit.png", "--quiet"],
+    ["identify", "{log}", "-o", "{tmp}/m.json", "--plot", "{tmp}/fit.txt", "--quiet"],
+    ["identify", "{log}", "-o", "{tmp}", "--quiet"],
+    ["predict", "{log}", "--model", "{model}", "-o", "{missing}/p.csv"],
+    ["predict", "{log}", "--model", "{model}", "-o", "{tmp}/p.csv", "--plot", "{missing}/p.png"],
+])
+def test_outputs_that_cannot_be_written_are_refused_before_any_work(argv, workdir, tmp_path, capsys, monkeypatch):
+    import warpbridge.model.identify as ident
+
+    def no_fit(*_a, **_k):
+        raise AssertionError("the fit started before the output paths were checked")
+
+    monkeypatch.setattr(ident, "identify", no_fit)
+    args = [a.format(log=workdir / "bench.csv", model=workdir / "model.json", missing=tmp_path / "nope",
+                     tmp=tmp_path) for a in argv]
+    rc = run(*args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert len(err) == 1 and err[0].startswith(f"warpbridge {argv[0]}: error:") and "Traceback" not in err[0]
+    assert not (tmp_path / "nope").exists() and not list(tmp_path.glob("*.*"))  # nothing written
+
+
+def test_predict_plot_draws_the_prediction_against_the_log(workdir, tmp_path, monkeypatch, recwarn):
+    from matplotlib.figure import Figure
+
+    figures = []
+    save = Figure.savefig
+
+    def keep(self, *a, **k):
+        figures.append(self)
+        return save(self, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    assert run("predict", workdir / "check.csv", "--model", workdir / "model.json", "-o", tmp_path / "p.csv",
+               "--plot", tmp_path / "p.png") == 0
+    assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert not [w for w in recwarn if "matplotlib" in str(w.filename) or "artists" in str(w.message)]
+    (fig,) = figures
+    texts = [fig.get_suptitle()] + [ax.get_title() for ax in fig.axes]
+    labels = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+    assert all(ax.lines for ax in fig.axes)  # no empty panel
+    assert all(ax.get_legend() is not None for ax in fig.axes)
+    assert "RMS" in fig.get_suptitle()
+    assert not any("training" in s for s in texts + labels)
+    # a time series, a residual and a loop (tendon on the x axis)
+    assert {ax.get_xlabel() for ax in fig.axes} >= {"t (s)", "tendon u (mm)"}
+
+
+def test_a_log_starting_with_the_tendon_loaded_is_predicted_from_its_first_sample(workdir, tmp_path, capsys):
+    """Issue 11's target: a correct model's whole-log RMS within 1.1x of its RMS after the first 5 s."""
+    assert run("simulate", "-o", tmp_path / "long.csv", "--duration", 40, "--rate", 200, "--seed", 6) == 0
+    log = np.loadtxt(tmp_path / "long.csv", delimiter=",", skiprows=1)
+    u, w = log[:, 1], log[:, 2]
+    # cut where the tendon has just been pulled far up from rest: the log starts loaded
+    start = 200 + int(np.argmax(u[200:4000]))
+    np.savetxt(tmp_path / "loaded.csv", log[start:], delimiter=",", header="t,u,warp,airspeed", comments="",
+               fmt="%.9g")
+    assert w[start] > np.median(w) + 1.0
+    assert run("predict", tmp_path / "loaded.csv", "--model", "paper", "-o", tmp_path / "p.csv") == 0
+    assert "estimated from the log's first samples" in capsys.readouterr().out
+    t = log[start:, 0]
+    e = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 1] - log[start:, 2]
+    whole = float(np.sqrt(np.mean(e ** 2)))
+    late = float(np.sqrt(np.mean(e[t >= t[0] + 5.0] ** 2)))
+    assert whole < 1.1 * late
+    assert whole < 0.06  # the paper plant with 0.05 deg noise, predicted by itself
+
+
+def test_identify_records_whether_the_data_support_the_model(workdir, capsys):
+    m = json.loads((workdir / "model.json").read_text())
+    assert m["fit"]["supported"] is True and "straight line" in m["fit"]["support"]
+    assert m["fit"]["linear_heldout_rms_deg"] > m["fit"]["heldout_rms_deg"]
+    assert m["z0"] == 0.0 and "z0_start_of_log" in m["fit"]  # another log's start is estimated from that log

@@ -5,7 +5,15 @@ import pytest
 
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.excitation import filtered_random, multisine_reversals
-from warpbridge.model.identify import compress_path, identify, noise_floor, reversal_indices
+from warpbridge.model.identify import (
+    compress_path,
+    fit_stretches,
+    identify,
+    noise_floor,
+    reversal_indices,
+    support_check,
+    turning_points,
+)
 
 P = BoucWenParams.paper()
 FS = 200.0
@@ -100,3 +108,126 @@ def test_refuses_logs_that_cannot_identify_the_model(case, message):
         w = 5 - np.sin(t)
     with pytest.raises(ValueError, match=message):
         identify(t, u, w)
+
+
+# ---- the initial state, the line, the cost bound ----------------------------------------------
+
+def test_a_log_that_starts_loaded_is_fitted_from_its_first_sample():
+    """The search starts every candidate from the state the first samples imply: a log cut where the
+    tendon is pulled far up identifies as well as one from rest, and its start is predicted."""
+    u = filtered_random(T, 1.0, 2.5, offset=4.5, seed=11)
+    w_true, w = noisy_log(u, 12)
+    cut = 400 + int(np.argmax(u[400:3000]))
+    assert w_true[cut] > np.median(w_true) + 1.0  # loaded
+    wrong = BoucWenParams(a1=-0.005, a2=0.5, a3=1.5, az=0.3, A=8.0, n=2.0, b=(5, -2, 1, -1, 3, -5))
+    res = identify(T[cut:], u[cut:], w[cut:], prior=wrong, maxiter=100)
+    assert res.heldout_rms < 1.2 * 0.05 and res.train_rms < 1.2 * 0.05
+    first_2s = slice(0, int(2 * FS))
+    assert np.sqrt(np.mean((res.w_pred[first_2s] - w_true[cut:][first_2s]) ** 2)) < 0.05
+    assert res.support.supported
+
+
+def test_turning_points_ignore_jitter():
+    t = np.linspace(0, 10, 5001)
+    jitter = 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    assert turning_points(np.sin(2 * np.pi * t)) == 20  # 10 peaks, 10 troughs
+    assert turning_points(np.sin(2 * np.pi * t) + jitter) == 20
+    assert turning_points(t + jitter) == 0  # a ramp with noise never turns back by 5 % of its span
+    assert turning_points(np.array([0.0, 1.0, 0.0, 1.0])) == 2
+
+
+def _support_case(kind):
+    """Hand-made logs for the support check: a 1 Hz sine, the last quarter held out."""
+    t = np.arange(0, 40, 0.01)
+    u = 5 + 2 * np.sin(2 * np.pi * 0.5 * t)
+    w = 2 * u + 0.02 * np.random.default_rng(1).standard_normal(t.size)
+    held = t >= 30
+    train = ~held
+    w_pred = w.copy()
+    if kind == "few turns":
+        u = np.where(train, 5 + 2 * np.sin(2 * np.pi * 0.04 * t), u)  # one slow swing in 30 s
+        w = 2 * u + 0.02 * np.random.default_rng(1).standard_normal(t.size)
+        w_pred = w + np.where(held, 1.0, 0.0)
+    elif kind == "beyond range":
+        u = np.where(held, 5 + 4 * np.sin(2 * np.pi * 0.5 * t), u)
+        w = 2 * u
+        w_pred = np.where(held, w + 0.5 * (u - 5) ** 2, w)
+    elif kind == "drift":
+        w = w + np.where(held, 0.1 * (t - 30), 0.0)
+        w_pred = 2 * u - 0.3 * np.where(held, 1.0, 0.0)
+    elif kind == "changed":
+        loop = 0.3 * np.cos(2 * np.pi * 0.5 * t)  # a loop a line cannot follow
+        w = 2 * u + loop
+        w_pred = np.where(train, w, 2 * u - loop)  # fitted well, then the loop turns the other way
+    elif kind == "no hysteresis":
+        w_pred = w + 0.05 * np.sin(2 * np.pi * 3 * t)
+    return t, u, w, w_pred, train, held
+
+
+@pytest.mark.parametrize("kind, supported, needle", [
+    ("perfect", True, "beats a straight line"),
+    ("few turns", False, "too little excitation"),
+    ("beyond range", False, "beyond the training range"),
+    ("drift", False, "drifts"),
+    ("changed", False, "behaves differently"),
+    ("no hysteresis", False, "no hysteresis"),
+])
+def test_the_support_check_names_why_a_line_does_as_well(kind, supported, needle):
+    t, u, w, w_pred, train, held = _support_case(kind)
+    s = support_check(t, u, w, w_pred, train, held, noise=0.02)
+    assert s.supported is supported
+    assert needle in s.reason
+    assert "\n" not in s.reason and "straight line" in s.reason
+
+
+def test_a_held_out_part_that_loops_the_other_way_is_reported_as_unsupported():
+    """The held-out quarter runs the plant backwards in time (its loop turns the other way, as if the
+    rig changed): a hysteresis model fitted on the rest predicts it worse than a line, and says so."""
+    t = np.arange(0, 20 * 100) / 100.0
+    u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=21)
+    w_true, _, _ = forward(P, u)
+    k = int(0.75 * t.size)
+    u2 = np.concatenate([u[:k], u[k:][::-1]])
+    w2 = np.concatenate([w_true[:k], w_true[k:][::-1]]) + 0.05 * np.random.default_rng(3).standard_normal(t.size)
+    res = identify(t, u2, w2, maxiter=40, polish_evals=300)
+    assert res.heldout_rms > res.linear_heldout_rms
+    assert not res.support.supported
+    assert res.support.reason.startswith("the data do not support the model")
+    assert res.fit_dict()["supported"] is False
+
+
+def test_a_diverging_candidate_is_rejected_within_its_budget():
+    """A candidate the search once drew on a measured log (normalised units): the forward solve spends
+    some 50,000 sub-steps on its first sample before finding it cannot follow the input. The fitting
+    kernel gives up after its budget, at the price of a few ordinary evaluations."""
+    from warpbridge.model import kernels as K
+    from warpbridge.model.boucwen import rest_warp
+
+    p = np.array([-0.07299, -0.08218, -0.1590, 1.0, 6.408, 4.406, 4.990e11, -2.495e11, 1.938e11, -2.495e11,
+                  1.938e11, -3.876e11])
+    u = np.sin(np.linspace(0, 6 * np.pi, 400))
+    w0 = rest_warp(BoucWenParams.from_array(p), float(u[0]))
+    budget = 5000
+    _, _, _, _, unbounded = K._forward_solve(p, w0, 0.0, -1.0, float(u[0]), -1, 1e-6)
+    assert unbounded > 10 * budget
+    sse = K.forward_sse_budget(p, u, u, np.ones(u.size), w0, 0.0, budget, 1e-6)
+    assert not np.isfinite(sse)
+    used = 0
+    wp, zp, zn = w0, 0.0, -1.0
+    for x in u:
+        wp, zp, zn, st, taken = K._forward_solve(p, wp, zp, zn, x, budget - used, 1e-6)
+        used += taken
+        if st != 0:
+            break
+    assert st != 0 and used <= budget
+
+
+def test_the_search_scores_a_bounded_part_of_a_reversal_dense_log():
+    u = filtered_random(np.arange(0, 60 * 500) / 500.0, 5.0, 2.5, offset=4.5, seed=2)
+    n_end = int(0.75 * u.size)
+    assert reversal_indices(u[:n_end]).size > 300
+    ranges = fit_stretches(u, n_end, 60)
+    assert ranges[0][0] == 0 and all(b <= n_end for _, b in ranges)
+    assert sum(reversal_indices(u[a:b]).size for a, b in ranges) <= 60 + 2 * len(ranges)
+    assert all(b0 <= a1 for (_, b0), (a1, _) in zip(ranges[:-1], ranges[1:], strict=True))  # no overlap
+    assert fit_stretches(u[:2000], 2000, 10_000) == [(0, 2000)]

@@ -57,3 +57,29 @@ def test_a_loaded_start_predicts_as_well_as_the_rest_of_the_log(loaded_log):
     estimated = forward(p, uc, z0=estimate_z0(p, uc, wc))[0]
     assert rms(at_rest) > 1.5 * rms(at_rest, after)  # the start at rest is visibly wrong
     assert rms(estimated) < 1.1 * rms(estimated, after)
+
+
+def test_a_model_with_effects_is_started_from_the_whole_chain():
+    """With pre-tension and a lagging sensor, the state is estimated through the whole effects chain:
+    the loaded start predicts as well as the rest of the log."""
+    from warpbridge.model.effects import Effects
+    from warpbridge.model.initial_state import estimate_plant_z0
+    from warpbridge.model.plant import Plant
+
+    p = BoucWenParams.paper().canonical()
+    plant = Plant(p, Effects(pretension_offset_mm=0.3, pretension_gain=0.9, sensor_tau_s=0.03))
+    t = np.arange(0, 30, 0.002)
+    u = 5 + 2 * np.sin(2 * np.pi * 0.3 * t) + 0.8 * np.sin(2 * np.pi * 1.1 * t + 1)
+    _, w = plant.simulate(t, u)
+    cut = int(np.argmax(u[:2500]))
+    tc, uc = t[cut:], u[cut:]
+    wc = w[cut:] + np.random.default_rng(1).normal(0, 0.05, uc.size)
+    after = tc >= tc[0] + 5.0
+
+    def rms(pred, sel=slice(None)):
+        return float(np.sqrt(np.mean((pred[sel] - wc[sel]) ** 2)))
+
+    at_rest = plant.simulate(tc, uc, z0=0.0)[1]
+    estimated = plant.simulate(tc, uc, z0=estimate_plant_z0(plant, tc, uc, wc))[1]
+    assert rms(at_rest) > 1.5 * rms(at_rest, after)
+    assert rms(estimated) < 1.1 * rms(estimated, after)

@@ -1,13 +1,18 @@
 """``warpbridge identify LOG.csv -o MODEL.json``: the nominal Bouc-Wen model from a log.
 
 Differential evolution then Nelder-Mead on the forward output error, the last
-part of the log held out; prints training and held-out RMS, the noise floor
-and a straight-line baseline; ``--plot`` draws measured vs model loops.
+part of the log held out, the initial hysteretic state estimated from the first
+samples; prints training and held-out RMS, the noise floor, a straight-line
+baseline fitted on the same training samples and whether the model beats it
+(if not, one line saying why the data do not support the model); ``--plot``
+draws measured vs model loops and time series. Every output path is checked
+before the fit starts.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from datetime import UTC, datetime
@@ -16,21 +21,38 @@ from pathlib import Path
 import numpy as np
 
 from warpbridge.bridge.commands.logfile import read_log
-from warpbridge.bridge.commands.modelio import save_model
 from warpbridge.bridge.errors import UserError
-from warpbridge.model.identify import identify
-from warpbridge.model.modelfile import FitQuality, ModelFile
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="CSV log with columns t,u,warp (or a bridge log with --wing)")
     p.add_argument("-o", "--output", required=True, help="MODEL.json to write")
     p.add_argument("--wing", choices=("left", "right"), help="read this wing's columns of a bridge log")
-    p.add_argument("--plot", help="PNG of measured vs model loops")
+    p.add_argument("--plot", help="PNG of measured vs model loops, time series and residual")
     p.add_argument("--heldout", type=float, default=0.25, help="fraction of the log held out (default 0.25)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the search (default 0)")
-    p.add_argument("--maxiter", type=int, default=150, help="generations of the global search (default 150)")
+    p.add_argument("--maxiter", type=int, default=150, help="most generations of the global search (default 150)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def check_outputs(outputs: dict[str, str | None], plots: tuple[str, ...] = ()) -> None:
+    """Refuse, before any work, output paths that cannot be written: a missing or unwritable folder,
+    a folder given as a file, a figure in a format matplotlib does not write."""
+    for opt, path in outputs.items():
+        if not path:
+            continue
+        p = Path(path)
+        d = p.parent if str(p.parent) else Path(".")
+        if not d.is_dir():
+            raise UserError(f"{opt} {path}: directory {d} does not exist")
+        if p.is_dir():
+            raise UserError(f"{opt} {path}: is a directory, not a file")
+        if not os.access(d, os.W_OK):
+            raise UserError(f"{opt} {path}: directory {d} is not writable")
+        if opt in plots and p.suffix.lower() not in PLOT_SUFFIXES:
+            raise UserError(f"{opt} {path}: a figure must end in {', '.join(PLOT_SUFFIXES)}")
 
 
 class Progress:
@@ -67,11 +89,18 @@ class Progress:
 
 
 def main(args: argparse.Namespace) -> int:
+    from warpbridge.bridge.commands.modelio import save_model
+    from warpbridge.model.identify import identify
+    from warpbridge.model.modelfile import FitQuality, ModelFile
+
+    check_outputs({"-o": args.output, "--plot": args.plot}, plots=("--plot",))
+    if not 0.05 <= args.heldout <= 0.5:
+        raise UserError("--heldout must lie between 0.05 and 0.5")
+    if args.maxiter < 1:
+        raise UserError("--maxiter must be at least 1")
     data = read_log(args.log, wing=args.wing)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
-    if not 0.05 <= args.heldout <= 0.5:
-        raise UserError("--heldout must lie between 0.05 and 0.5")
     progress = Progress(enabled=not args.quiet)
     t0 = time.perf_counter()
     try:
@@ -87,6 +116,8 @@ def main(args: argparse.Namespace) -> int:
                             if k not in ("train_rms_deg", "heldout_rms_deg", "noise_deg")} | {"seconds": elapsed})
     meta = {"source_log": Path(args.log).name, "wing": args.wing, "samples": len(data),
             "created": datetime.now(UTC).isoformat(timespec="seconds"), "seed": args.seed}
+    # z0 stays at rest: the state at the start of this log says nothing about another log's (predict
+    # and diagnose estimate it from each log's first samples); the fit record keeps this log's
     mf = ModelFile(params=res.params, fit=fit, meta=meta)
     save_model(args.output, mf)
     if args.plot:
@@ -95,13 +126,18 @@ def main(args: argparse.Namespace) -> int:
         plot_identification(args.plot, data.t, data.u, data.warp, res.w_pred, res.heldout_mask,
                             title=f"{Path(args.log).name}: identified generalized Bouc-Wen model")
     ratio = res.heldout_rms / res.noise if res.noise > 0 else float("nan")
+    split = res.split_time
     print(f"identified {Path(args.log).name} ({len(data)} samples, {data.t[-1] - data.t[0]:.1f} s) in {elapsed:.1f} s")
-    print(f"  training RMS {res.train_rms:.4f} deg, held-out RMS {res.heldout_rms:.4f} deg "
-          f"({ratio:.2f}x the noise floor {res.noise:.4f} deg)")
-    print(f"  straight-line baseline held-out RMS {res.linear_heldout_rms:.4f} deg")
+    print(f"  training RMS {res.train_rms:.4f} deg (t < {split:.2f} s, {res.n_train} samples), held-out RMS "
+          f"{res.heldout_rms:.4f} deg (t >= {split:.2f} s, {res.n_heldout} samples; {ratio:.2f}x the noise floor "
+          f"{res.noise:.4f} deg)")
+    print(f"  straight-line baseline (fitted on the same training samples) held-out RMS "
+          f"{res.linear_heldout_rms:.4f} deg")
     p = res.params
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
+    if res.support is not None and not res.support.supported:
+        print(f"warning: {res.support.reason}")
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
     if not np.isfinite(res.heldout_rms):
         return 1

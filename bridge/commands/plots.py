@@ -1,8 +1,11 @@
-"""Figures for identify and predict: measured vs model hysteresis loops and time series (matplotlib, Agg)."""
+"""Figures for identify and predict: the model against the log as time series, hysteresis loops and
+residual (matplotlib, Agg). A figure is written whole or not at all."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -16,34 +19,82 @@ def _pyplot():
     return plt
 
 
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
+
+
+def _save(fig, path: str | os.PathLike) -> None:
+    """Save through a temporary file beside the target, then rename: never a half-written figure."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp{p.suffix}")
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, p)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def _loop(ax, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray, title: str) -> None:
+    ax.plot(u, w, ".", ms=1.5, color="0.55", label="logged warp")
+    ax.plot(u, w_pred, "-", lw=0.8, color="C3", label=f"model (RMS {_rms(w - w_pred):.3f} deg)")
+    ax.set_title(title)
+    ax.set_xlabel("tendon u (mm)")
+    ax.set_ylabel("warp (deg)")
+    ax.legend(loc="upper left", fontsize="small")
+
+
 def plot_identification(path: str | os.PathLike, t: np.ndarray, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray,
                         heldout: np.ndarray, title: str = "") -> None:
-    """Loops (u vs warp, measured and model) for the training and held-out parts, and the residual in time."""
+    """Loops (u vs warp, logged and model) for the training and held-out parts, the warp in time with
+    the held-out part shaded, and the residual."""
     plt = _pyplot()
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8), constrained_layout=True)
-    for ax, mask, name in ((axes[0, 0], ~heldout, "training"), (axes[0, 1], heldout, "held out")):
-        if mask.any():
-            ax.plot(u[mask], w[mask], ".", ms=1.5, color="0.6", label="measured")
-            ax.plot(u[mask], w_pred[mask], "-", lw=0.8, color="C3", label="model")
-            rms = float(np.sqrt(np.mean((w[mask] - w_pred[mask]) ** 2)))
-            ax.set_title(f"{name}: RMS {rms:.3f} deg")
-        ax.set_xlabel("tendon u (mm)")
-        ax.set_ylabel("warp (deg)")
-        ax.legend(loc="upper left")
-    ax = axes[1, 0]
-    ax.plot(t, w, color="0.6", lw=0.6, label="measured")
+    heldout = np.asarray(heldout, bool)
+    parts = [(m, name) for m, name in ((~heldout, "training part"), (heldout, "held-out part")) if m.any()]
+    fig = plt.figure(figsize=(12, 8), layout="constrained")
+    grid = fig.add_gridspec(2, len(parts))
+    for k, (mask, name) in enumerate(parts):
+        _loop(fig.add_subplot(grid[0, k]), u[mask], w[mask], w_pred[mask], f"{name}: u -> warp")
+    bottom = grid[1, :].subgridspec(2, 1, height_ratios=(2, 1))
+    ax = fig.add_subplot(bottom[0])
+    ax.plot(t, w, color="0.55", lw=0.6, label="logged warp")
     ax.plot(t, w_pred, color="C3", lw=0.8, label="model")
     if heldout.any():
-        ax.axvspan(t[heldout][0], t[-1], color="C0", alpha=0.08, label="held out")
-    ax.set_xlabel("t (s)")
+        ax.axvspan(t[heldout][0], t[-1], color="C0", alpha=0.08, label="held out (never fitted)")
     ax.set_ylabel("warp (deg)")
-    ax.legend(loc="upper right")
-    ax = axes[1, 1]
-    ax.plot(t, w - w_pred, color="C0", lw=0.5)
-    ax.axhline(0, color="k", lw=0.5)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("residual (deg)")
+    ax.legend(loc="upper right", fontsize="small")
+    ax2 = fig.add_subplot(bottom[1], sharex=ax)
+    ax2.plot(t, w - w_pred, color="C0", lw=0.5)
+    ax2.axhline(0, color="k", lw=0.5)
+    ax2.set_xlabel("t (s)")
+    ax2.set_ylabel("residual (deg)")
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=110)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_prediction(path: str | os.PathLike, t: np.ndarray, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray,
+                    title: str = "") -> None:
+    """The prediction against the logged warp: time series, loop (u vs warp) and residual, with the RMS."""
+    plt = _pyplot()
+    rms = _rms(w - w_pred)
+    fig = plt.figure(figsize=(12, 8), layout="constrained")
+    grid = fig.add_gridspec(2, 2, width_ratios=(2, 1))
+    ax = fig.add_subplot(grid[0, 0])
+    ax.plot(t, w, color="0.55", lw=0.6, label="logged warp")
+    ax.plot(t, w_pred, color="C3", lw=0.8, label="predicted")
+    ax.set_ylabel("warp (deg)")
+    ax.set_title("warp in time")
+    ax.legend(loc="upper right", fontsize="small")
+    ax2 = fig.add_subplot(grid[1, 0], sharex=ax)
+    ax2.plot(t, w - w_pred, color="C0", lw=0.5, label=f"logged - predicted (RMS {rms:.3f} deg)")
+    ax2.axhline(0, color="k", lw=0.5)
+    ax2.set_xlabel("t (s)")
+    ax2.set_ylabel("residual (deg)")
+    ax2.legend(loc="upper right", fontsize="small")
+    _loop(fig.add_subplot(grid[:, 1]), u, w, w_pred, "loop: u -> warp")
+    fig.suptitle(f"{title}: RMS {rms:.3f} deg over {t.size} samples" if title else
+                 f"prediction: RMS {rms:.3f} deg over {t.size} samples")
+    _save(fig, path)
     plt.close(fig)

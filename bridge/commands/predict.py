@@ -1,19 +1,27 @@
 """``warpbridge predict LOG.csv --model MODEL.json -o PRED.csv``: warp the model predicts from the logged tendon input.
 
 Applies the model's effects (delay, rate limit, backlash, ..., sensor lag,
-drift, aero load with the log's airspeed). Writes ``t,warp_pred``; if the log
-has measured warp, prints the RMS error.
+drift, aero load with the log's airspeed). The hysteretic state at the start
+of the log is estimated from its first samples when it has measured warp
+(a log rarely starts at rest); otherwise MODEL.json's ``z0`` is used. Writes
+``t,warp_pred``; if the log has measured warp, prints the RMS error over the
+whole log and after its first 5 s, and ``--plot`` draws the prediction against
+the log. Every output path is checked before the work starts.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
+from warpbridge.bridge.commands.identify import check_outputs
 from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic
 from warpbridge.bridge.commands.modelio import load_model
+
+SETTLE_S = 5.0  # the RMS is also reported after this much of the log
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,10 +29,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True, help="MODEL.json (or 'paper')")
     p.add_argument("-o", "--output", required=True, help="CSV to write: t,warp_pred")
     p.add_argument("--wing", choices=("left", "right"), help="read this wing's columns of a bridge log")
-    p.add_argument("--plot", help="PNG of measured vs predicted loops")
+    p.add_argument("--plot", help="PNG of the prediction against the logged warp (needs a warp column)")
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
 
 
 def main(args: argparse.Namespace) -> int:
+    from warpbridge.model.initial_state import estimate_plant_z0
+
+    check_outputs({"-o": args.output, "--plot": args.plot}, plots=("--plot",))
     mf = load_model(args.model)
     data = read_log(args.log, wing=args.wing, require_warp=False, min_rows=2)
     for note in data.notes:
@@ -32,17 +47,32 @@ def main(args: argparse.Namespace) -> int:
     if mf.effects.active() and "aero_load" in mf.effects.active() and data.airspeed is None:
         print("note: the model has aero_load but the log has no airspeed column: assuming no airflow",
               file=sys.stderr)
-    _, w_pred = mf.plant.simulate(data.t, data.u, data.airspeed, z0=mf.z0)
+    has_warp = data.warp is not None and np.isfinite(data.warp).any()
+    if args.plot and not has_warp:
+        print("note: the log has no measured warp: --plot skipped", file=sys.stderr)
+    plant = mf.plant
+    if has_warp:
+        z0 = estimate_plant_z0(plant, data.t, data.u, data.warp, data.airspeed)
+        z0_note = f"initial state z0 = {z0:.4g} estimated from the log's first samples"
+    else:
+        z0 = mf.z0
+        z0_note = f"initial state z0 = {z0:.4g} from the model file (no measured warp to estimate it from)"
+    _, w_pred = plant.simulate(data.t, data.u, data.airspeed, z0=z0)
     write_csv_atomic(args.output, {"t": data.t, "warp_pred": w_pred})
-    msg = f"wrote {args.output}: {len(data)} predictions"
-    if data.warp is not None and np.isfinite(data.warp).any():
+    print(f"wrote {args.output}: {len(data)} predictions; {z0_note}")
+    if has_warp:
         ok = np.isfinite(data.warp)
-        rms = float(np.sqrt(np.mean((data.warp[ok] - w_pred[ok]) ** 2)))
-        msg += f"; RMS error against the logged warp {rms:.4f} deg"
+        late = ok & (data.t >= data.t[0] + SETTLE_S)
+        rms = _rms(data.warp[ok] - w_pred[ok])
+        msg = (f"RMS error against the logged warp {rms:.4f} deg over the whole log "
+               f"({int(ok.sum())} samples, t = {data.t[0]:.2f}-{data.t[-1]:.2f} s)")
+        if late.any() and late.sum() < ok.sum():
+            msg += f"; {_rms(data.warp[late] - w_pred[late]):.4f} deg after its first {SETTLE_S:g} s"
+        print(msg)
         if args.plot:
-            from warpbridge.bridge.commands.plots import plot_identification
+            from warpbridge.bridge.commands.plots import plot_prediction
 
-            plot_identification(args.plot, data.t[ok], data.u[ok], data.warp[ok], w_pred[ok],
-                                np.zeros(int(ok.sum()), bool), title="prediction")
-    print(msg)
+            plot_prediction(args.plot, data.t[ok], data.u[ok], data.warp[ok], w_pred[ok],
+                            title=f"{Path(args.log).name} predicted by {Path(str(args.model)).name}")
+            print(f"wrote {args.plot}")
     return 0
