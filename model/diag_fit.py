@@ -16,6 +16,14 @@ so those are solved by least squares inside every evaluation (variable
 projection) and the searches run only over the nonlinear parameters: a grid
 for a good start, then bounded Brent (one parameter) or Nelder-Mead (more),
 in a box normalised to [0, 1] per parameter.
+
+When the nominal model carries a model-error model (``model.model_error``,
+learned from the bench residual), its correction is added to the core's
+output for every candidate, so effects are fitted to what changed since the
+bench. The initial hysteretic state follows each candidate's input: the
+nominal's estimate, moved by the change of the algebraic state that the
+candidate's input effects make at the first samples (a pre-tension offset
+moves z0 with it), clamped to the reachable band.
 """
 
 from __future__ import annotations
@@ -32,6 +40,8 @@ from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 from warpbridge.model.diag_kernels import forward_run_capped
 from warpbridge.model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
 from warpbridge.model.identify import reversal_indices, warmup_end
+from warpbridge.model.initial_state import algebraic_z0, reachable_band
+from warpbridge.model.model_error import ErrorModel
 
 log = logging.getLogger(__name__)
 
@@ -186,6 +196,25 @@ class Fit:
     score_mse: float
     n_params: int
     evaluations: int = 0
+    coords: dict[str, float] = field(default_factory=dict)  # search coordinate in [0, 1] per nonlinear field
+    boxes: list[Box] = field(default_factory=list, repr=False)
+
+    def bound_hits(self, tol: float = 0.01) -> list[dict]:
+        """Nonlinear parameters fitted at (within ``tol`` of) an edge of their search box."""
+        out = []
+        for b in self.boxes:
+            s = self.coords.get(b.field)
+            if s is None:
+                continue
+            if b.neutral_at_hi and s >= 1.0:
+                continue  # "no limit" is a value, not a bound
+            for edge, hit, limit in (("lower", s <= tol, b.lo), ("upper", s >= 1.0 - tol, b.hi)):
+                if hit:
+                    effect = next(n for n, (fs, _, _) in EFFECT_FIELDS.items() if b.field in fs)
+                    out.append({"effect": effect, "parameter": b.field, "bound": edge, "limit": limit,
+                                "value": _jsonable(getattr(self.effects, b.field))})
+        return out
+
 
     def values(self, names=None) -> dict[str, dict[str, float]]:
         """{effect: {parameter: value}} of the named (default: fitted) effects."""
@@ -203,7 +232,7 @@ class Problem:
     """A log and a nominal model to be augmented; see the module docstring."""
 
     def __init__(self, t, u, w, airspeed, params: BoucWenParams, effects: Effects, z0: float = 0.0,
-                 split: Split | None = None) -> None:
+                 split: Split | None = None, error_model: ErrorModel | None = None) -> None:
         self.t = np.ascontiguousarray(t, dtype=np.float64)
         self.u = np.ascontiguousarray(u, dtype=np.float64)
         self.w = np.ascontiguousarray(w, dtype=np.float64)
@@ -212,6 +241,7 @@ class Problem:
         self.params = params
         self.base = effects
         self.z0 = float(z0)
+        self.error_model = error_model if error_model is not None and error_model.theta.size else None
         self.split = split or make_split(self.t, self.u)
         self.tau = self.t - self.t[0]
         self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
@@ -219,7 +249,10 @@ class Problem:
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
         # the nominal model is run uncapped, exactly as ``predict`` would, whatever it saturates
         x = apply_input_effects(effects, self.t, self.u)
-        self._core[self._key(effects)] = forward(self._core_params(effects), x, z0=self.z0)[0]
+        p = self._core_params(effects)
+        self._z0_alg = algebraic_z0(p, x, self.w) * p.az  # in mm of tendon: comparable across friction scales
+        w0 = forward(p, x, z0=self.z0)[0]
+        self._core[self._key(effects)] = self._corrected(x, w0)
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
@@ -229,6 +262,18 @@ class Problem:
         if eff.friction_scale == 1.0:
             return self.params
         return replace(self.params, az=self.params.az * eff.friction_scale)
+
+    def _corrected(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        if self.error_model is None or not np.all(np.isfinite(w)):
+            return w
+        return w + self.error_model.correction(self.t, x, w)
+
+    def z0_for(self, p: BoucWenParams, x: np.ndarray) -> float:
+        """Initial state for a candidate's core: the nominal's, moved as the algebraic state moves."""
+        shift = algebraic_z0(p, x, self.w) * p.az - self._z0_alg
+        z = (self.z0 * self.params.az + shift) / p.az
+        lo, hi = reachable_band(p, float(self.w[0]))
+        return float(np.clip(z, lo, hi))
 
     # -- prediction --
     def core(self, eff: Effects) -> np.ndarray:
@@ -244,9 +289,11 @@ class Problem:
         w = np.empty_like(x)
         z = np.empty_like(x)
         cap = max(10, int(MAX_SATURATED * x.size))
-        if not _reachable(p, x) or forward_run_capped(p.to_array(), x, rest_warp(p, float(x[0]), self.z0), self.z0,
+        z0 = self.z0_for(p, x)
+        if not _reachable(p, x) or forward_run_capped(p.to_array(), x, rest_warp(p, float(x[0]), z0), z0,
                                                       w, z, cap) < 0:
             w[:] = np.nan  # beyond the model's monotone range: not a candidate
+        w = self._corrected(x, w)
         self._core[key] = w
         if len(self._core) > 8:
             self._core.popitem(last=False)  # (the nominal may go too: it is only needed once)
@@ -348,7 +395,7 @@ class Problem:
                 s0 = self._nelder_mead(cost, s0, max_evals)
         eff, wp = self.solve_linear(build(s0), lin)
         return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), n_params,
-                   self.evaluations - evals0)
+                   self.evaluations - evals0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes)
 
     def _grid_start(self, boxes: list[Box], s0: np.ndarray, cost, grid_name: str, movers) -> np.ndarray:
         idx = [i for i, b in enumerate(boxes) if b.field in EFFECT_FIELDS[grid_name][0]] if grid_name in movers else []

@@ -16,7 +16,7 @@ from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain
 from warpbridge.model.diag_where import PHASES, phase_labels
 from warpbridge.model.diagnose import diagnose
-from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
@@ -83,7 +83,10 @@ def test_problem_predicts_exactly_what_the_plant_simulates():
                   aero_deg_per_kpa=0.8)
     t, u, w, v = make_log(Effects(), seed=4, duration=5.0)
     prob = Problem(t, u, w, v, P, Effects())
-    _, expected = Plant(P, eff).simulate(t, u, v)
+    plant = Plant(P, eff)
+    # each candidate starts from its own initial state (its input effects move the algebraic z0)
+    z0 = prob.z0_for(plant.core_params(), apply_input_effects(eff, t, u))
+    _, expected = plant.simulate(t, u, v, z0=z0)
     np.testing.assert_allclose(prob.predict(eff), expected, rtol=0, atol=1e-9)
 
 

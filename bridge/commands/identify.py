@@ -19,6 +19,7 @@ from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.commands.modelio import save_model
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.identify import identify
+from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
 
 
@@ -88,6 +89,7 @@ def main(args: argparse.Namespace) -> int:
     meta = {"source_log": Path(args.log).name, "wing": args.wing, "samples": len(data),
             "created": datetime.now(UTC).isoformat(timespec="seconds"), "seed": args.seed}
     mf = ModelFile(params=res.params, fit=fit, meta=meta)
+    mf.model_error = bench_model_error(mf, data)
     save_model(args.output, mf)
     if args.plot:
         from warpbridge.bridge.commands.plots import plot_identification
@@ -103,6 +105,19 @@ def main(args: argparse.Namespace) -> int:
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
+    if mf.model_error is not None:
+        em = mf.model_error
+        print(f"  model-error model for diagnose: bench residual {em.rms_before_deg:.4f} -> {em.rms_after_deg:.4f} deg "
+              f"RMS cross-validated ({', '.join(em.sets) or 'no correction'})")
     if not np.isfinite(res.heldout_rms):
         return 1
     return 0
+
+
+def bench_model_error(mf: ModelFile, data) -> ErrorModel | None:
+    """What the identified model still gets wrong on this (bench) log, learned for ``diagnose``."""
+    try:
+        return bench_error_model(mf.params, mf.effects, data.t, data.u, data.warp)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        print(f"note: no model-error model: {e}", file=sys.stderr)
+        return None
