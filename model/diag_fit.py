@@ -10,7 +10,7 @@ friction scale).
 The output side is affine in the linear parameters (aero load gain and offset,
 drift), even through the sensor lag, which is a linear filter::
 
-    w_meas = lag(w_core) - g lag(q w_core) - c lag(q) + d (t - t0)
+    w_meas = lag(w_core) - g lag(q w_core) - c lag(q) + d D(t - t0; tau)
 
 so those are solved by least squares inside every evaluation (variable
 projection) and the searches run only over the nonlinear parameters: a grid
@@ -38,7 +38,14 @@ from scipy.optimize import minimize, minimize_scalar
 
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 from warpbridge.model.diag_kernels import forward_run_capped
-from warpbridge.model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
+from warpbridge.model.effects import (
+    EFFECT_FIELDS,
+    Effects,
+    apply_input_effects,
+    drift_shape,
+    dynamic_pressure_kpa,
+    lagged,
+)
 from warpbridge.model.identify import reversal_indices, warmup_end
 from warpbridge.model.initial_state import algebraic_z0, reachable_band
 from warpbridge.model.model_error import ErrorModel
@@ -153,6 +160,8 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
         return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
     if name == "friction":
         return [Box("friction_scale", 0.2, 5.0, log=True)]
+    if name == "drift":  # from a zero that settles within a twentieth of the log to a steady ramp
+        return [Box("drift_tau_s", 0.05 * dur, 20.0 * dur, log=True, neutral_at_hi=True)]
     if name == "pretension":
         return [Box("pretension_offset_mm", -0.5 * span, 0.5 * span), Box("pretension_gain", 0.5, 2.0, log=True)]
     return []
@@ -325,9 +334,9 @@ class Problem:
             else:
                 base = base - c * lq
         if "drift_deg_s" in free:
-            cols.append(self.tau)
+            cols.append(drift_shape(self.tau, eff.drift_tau_s))
         elif d != 0.0:
-            base = base + d * self.tau
+            base = base + d * drift_shape(self.tau, eff.drift_tau_s)
         basis = np.column_stack(cols) if cols else np.zeros((self.t.size, 0))
         return base, basis
 

@@ -128,7 +128,7 @@ class Decision:
 
 # a small grid around the default, for ``alternatives`` (how the verdict depends on the decision)
 DECISION_GRID: tuple[Decision, ...] = tuple(
-    Decision(a, s, g) for a in (0.001, 0.01, 0.05) for s in (0.1, 0.25, 0.5) for g in (0.1, 0.25, 0.5))
+    Decision(a, s, g) for a in (0.001, 0.01, 0.05) for s in (0.1, 0.25, 0.5) for g in (0.25, 0.5, 1.0, 2.0))
 
 
 @dataclass

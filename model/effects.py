@@ -14,8 +14,12 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | friction    | friction_scale                 | az -> friction_scale * az (loop widens or narrows)   |
 | pretension  | pretension_offset_mm, _gain    | u_eff = gain * (u - offset)                          |
 | sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
-| drift       | drift_deg_s                    | w_meas += drift_deg_s * (t - t0)                     |
+| drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
 | aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
+
+The drift is a sensor zero warming up: it starts at ``drift_deg_s`` deg/s and
+settles with time constant ``drift_tau_s``; ``drift_tau_s = inf`` (the default,
+and what a file without the field means) is a steady ramp.
 
 All operators are plain functions on arrays (compiled) plus a per-sample state
 machine in ``model.plant`` that gives the same results.
@@ -44,7 +48,7 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
                    "pre-tension changed: the loop shifts in input and scales"),
     "sensor_lag": (("sensor_tau_s",), (0.0,), "first-order lag in the warp measurement"),
-    "drift": (("drift_deg_s",), (0.0,), "slow drift of the warp sensor's zero over the log"),
+    "drift": (("drift_deg_s", "drift_tau_s"), (0.0, math.inf), "slow drift of the warp sensor's zero over the log"),
     "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
                   "airspeed-dependent load on the trailing edge: warp lost in proportion to dynamic pressure"),
 }
@@ -62,6 +66,7 @@ class Effects:
     pretension_gain: float = 1.0
     sensor_tau_s: float = 0.0
     drift_deg_s: float = 0.0
+    drift_tau_s: float = math.inf
     aero_gain_per_kpa: float = 0.0
     aero_deg_per_kpa: float = 0.0
 
@@ -77,6 +82,8 @@ class Effects:
             raise ValueError("rate limit must be positive")
         if not self.friction_scale > 0 or not self.pretension_gain > 0:
             raise ValueError("friction scale and pre-tension gain must be positive")
+        if not self.drift_tau_s > 0:
+            raise ValueError("drift time constant must be positive")
 
     def active(self) -> list[str]:
         """Names of the effects whose parameters differ from neutral."""
@@ -104,8 +111,10 @@ class Effects:
         return replace(self, **kw)
 
     def to_dict(self) -> dict[str, dict[str, float]]:
-        """{effect name: {parameter: value}} for the active effects."""
-        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0]} for name in self.active()}
+        """{effect name: {parameter: value}} for the active effects; an infinite value (no limit, a steady
+        ramp) is left out, which reads back as the same."""
+        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0] if math.isfinite(getattr(self, f))}
+                for name in self.active()}
 
     @classmethod
     def from_dict(cls, d: dict) -> Effects:
@@ -120,6 +129,8 @@ class Effects:
             for f, v in params.items():
                 if f not in EFFECT_FIELDS[name][0]:
                     raise ValueError(f"effect {name!r} has no parameter {f!r}")
+                if v is None and math.isinf(EFFECT_FIELDS[name][1][EFFECT_FIELDS[name][0].index(f)]):
+                    continue  # null: no limit / a steady ramp
                 try:
                     kw[f] = float(v)
                 except (TypeError, ValueError):
@@ -237,5 +248,12 @@ def apply_output_effects(eff: Effects, t: np.ndarray, w_model: np.ndarray, airsp
     if eff.sensor_tau_s > 0:
         w_meas = lagged(t, np.ascontiguousarray(w_meas), eff.sensor_tau_s, float(w_meas[0]))
     if eff.drift_deg_s != 0.0:
-        w_meas = w_meas + eff.drift_deg_s * (t - t[0])
+        w_meas = w_meas + eff.drift_deg_s * drift_shape(t - t[0], eff.drift_tau_s)
     return w, w_meas
+
+
+def drift_shape(dt, tau: float):
+    """Zero drift per deg/s of initial rate after dt s: tau (1 - exp(-dt / tau)), or dt for tau = inf."""
+    if not math.isfinite(tau):
+        return dt
+    return -tau * np.expm1(-np.asarray(dt, dtype=np.float64) / tau)

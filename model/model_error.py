@@ -12,10 +12,13 @@ linear combination of features of where the hysteresis is::
   bench range (clipped a little beyond it);
 - branch: the direction of the tendon travel s = +-1 times P0..P2 (a loop of
   the wrong width or a branch of the wrong curvature);
-- transition: s exp(-d / l) for three lengths l, d the travel since the last
+- transition: s exp(-d / l) for four lengths l, d the travel since the last
   reversal (the shape of the turn after a reversal);
 - rate: the model's warp rate and its product with the level (latency, servo
-  and sensor dynamics the rate-independent model cannot express).
+  and sensor dynamics the rate-independent model cannot express);
+- memory: the turn measured against the previous leg, s exp(-(d / a) / l) for
+  three l, and s a, s a^2, a the travel of the previous leg over the span
+  (minor loops that the model closes differently from the wing).
 
 Nested feature sets and a ridge penalty are chosen by blocked cross-validation
 on the bench log, so noise is not learned as structure; the cross-validated
@@ -35,9 +38,10 @@ import numpy as np
 from numba import njit
 
 FORMAT = "warpbridge-model-error/1"
-FEATURE_SETS = ("level", "branch", "transition", "rate")  # nested: each set adds its columns to the previous
-SET_COLUMNS = {"level": 4, "branch": 3, "transition": 3, "rate": 2}
-TRANSITION_LENGTHS = (0.02, 0.06, 0.2)  # of the tendon span
+FEATURE_SETS = ("level", "branch", "transition", "rate", "memory")  # nested: each adds columns to the previous
+SET_COLUMNS = {"level": 4, "branch": 3, "transition": 4, "rate": 2, "memory": 5}
+TRANSITION_LENGTHS = (0.01, 0.03, 0.1, 0.3)  # of the tendon span
+MEMORY_LENGTHS = (0.05, 0.2, 0.6)  # of the previous leg
 DEADBAND = 0.005  # of the tendon span: smaller wiggles are not reversals
 RIDGES = (1e-6, 1e-4, 1e-2, 1.0)  # penalty relative to the mean diagonal of the normal equations
 FOLDS = 5
@@ -47,13 +51,16 @@ RATE_SMOOTH_S = 0.01
 
 @njit(cache=True)
 def travel_since_reversal(x, eps):
-    """(direction +-1, travel since the last reversal) per sample; reversals need ``eps`` of travel back."""
+    """(direction +-1, travel since the last reversal, travel of the leg before it) per sample;
+    reversals need ``eps`` of travel back."""
     n = x.shape[0]
     s = np.empty(n)
     d = np.empty(n)
+    a = np.empty(n)
     direction = 1.0
     ext = x[0]
     rev = x[0]
+    prev = 0.0
     started = False
     for k in range(n):
         v = x[k]
@@ -66,15 +73,18 @@ def travel_since_reversal(x, eps):
             if v > ext:
                 ext = v
             elif ext - v > eps:
+                prev = ext - rev
                 direction, rev, ext = -1.0, ext, v
         else:
             if v < ext:
                 ext = v
             elif v - ext > eps:
+                prev = rev - ext
                 direction, rev, ext = 1.0, ext, v
         s[k] = direction
         d[k] = abs(v - rev)
-    return s, d
+        a[k] = prev
+    return s, d, a
 
 
 def _smooth_rate(t: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -176,20 +186,21 @@ def design(t, x, w, w_center: float, w_scale: float, x_span: float, rate_scale: 
     h = np.clip((w - w_center) / w_scale, -LEVEL_CLIP, LEVEL_CLIP)
     p1, p2, p3 = h, 1.5 * h * h - 0.5, 2.5 * h ** 3 - 1.5 * h
     cols: list[np.ndarray] = []
-    s = d = None
+    s, d, a = travel_since_reversal(x, DEADBAND * x_span) if len(sets) > 1 else (None, None, None)
     for name in sets:
         if name == "level":
             cols += [np.ones_like(h), p1, p2, p3]
         elif name == "branch":
-            s, d = travel_since_reversal(x, DEADBAND * x_span)
             cols += [s, s * p1, s * p2]
         elif name == "transition":
-            if s is None:
-                s, d = travel_since_reversal(x, DEADBAND * x_span)
             cols += [s * np.exp(-d / (lam * x_span)) for lam in TRANSITION_LENGTHS]
         elif name == "rate":
             v = _smooth_rate(t, w) / rate_scale
             cols += [v, v * p1]
+        elif name == "memory":
+            leg = np.minimum(a / x_span, 1.0)
+            rel = np.minimum(d / np.maximum(a, DEADBAND * x_span), 2.0)
+            cols += [s * np.exp(-rel / lam) for lam in MEMORY_LENGTHS] + [s * leg, s * leg * leg]
     if not cols:
         return np.zeros((t.size, 0))
     return np.column_stack(cols)

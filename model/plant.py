@@ -15,7 +15,13 @@ import numpy as np
 
 from warpbridge.model import kernels as K
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
-from warpbridge.model.effects import Effects, apply_input_effects, apply_output_effects, dynamic_pressure_kpa
+from warpbridge.model.effects import (
+    Effects,
+    apply_input_effects,
+    apply_output_effects,
+    drift_shape,
+    dynamic_pressure_kpa,
+)
 
 
 @dataclass(frozen=True)
@@ -115,6 +121,6 @@ class PlantStepper:
             self._lag_y = a * self._lag_y + (1.0 - a) * w_true
             w_meas = self._lag_y
         if e.drift_deg_s != 0.0:
-            w_meas = w_meas + e.drift_deg_s * (t - self._t0)
+            w_meas = w_meas + e.drift_deg_s * float(drift_shape(t - self._t0, e.drift_tau_s))
         self._t_prev = float(t)
         return w_true, w_meas
