@@ -300,7 +300,9 @@ def free_cores() -> int:
     return max(1, int(n - load + 0.5))
 
 
-def run_all(jobs: list, fn, args, label: str) -> list:
+def run_all(jobs: list, fn, args, label: str, on_result=None) -> list:
+    """Run ``fn(*job, args)`` for every job (in parallel when asked or when cores are free), handing each
+    result to ``on_result`` as soon as it is there."""
     out = []
     workers = args.jobs or min(free_cores(), os.cpu_count() or 1)
     bar = None
@@ -311,12 +313,16 @@ def run_all(jobs: list, fn, args, label: str) -> list:
     if workers <= 1:
         for j in jobs:
             out.append(fn(*j, args))
+            if on_result:
+                on_result(out[-1])
             _tick(bar, label, len(out), len(jobs), out[-1])
         return out
     with ProcessPoolExecutor(workers) as pool:
         futs = [pool.submit(fn, *j, args) for j in jobs]
         for f in as_completed(futs):
             out.append(f.result())
+            if on_result:
+                on_result(out[-1])
             _tick(bar, label, len(out), len(jobs), out[-1])
     return out
 
@@ -381,10 +387,12 @@ def main() -> None:
         print(f"{len(cases)} cases ({len(results)} cached), {len(plants)} plants; cache {args.cache}", flush=True)
         need = sorted({(c[0], c[1], c[2]) for c in todo})
         run_all(need, plant_job, args, "identify bench logs")
-        for r in run_all(todo, case_job, args, "diagnose cases"):
+        def keep(r: dict) -> None:
             (res_dir / f"{r['family']}-s{r['seed']}-p{r['plant_index']}-c{r['case']}.json").write_text(
                 json.dumps(r, indent=1))
             results.append(r)
+
+        run_all(todo, case_job, args, "diagnose cases", keep)
     if not results:
         print("no results")
         return

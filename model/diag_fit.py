@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
-from warpbridge.model.diag_kernels import forward_run_capped
+from warpbridge.model.diag_kernels import fill_along_travel, forward_run_capped, travel_grid
 from warpbridge.model.effects import (
     EFFECT_FIELDS,
     Effects,
@@ -54,6 +54,7 @@ log = logging.getLogger(__name__)
 
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
+TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
 INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale")
 
 
@@ -160,8 +161,8 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
         return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
     if name == "friction":
         return [Box("friction_scale", 0.2, 5.0, log=True)]
-    if name == "drift":  # from a zero that settles within a twentieth of the log to a steady ramp
-        return [Box("drift_tau_s", 0.05 * dur, 20.0 * dur, log=True, neutral_at_hi=True)]
+    if name == "drift":  # from a zero still settling at the log's end (not a static offset) to a steady ramp
+        return [Box("drift_tau_s", 0.25 * dur, 20.0 * dur, log=True, neutral_at_hi=True)]
     if name == "pretension":
         return [Box("pretension_offset_mm", -0.5 * span, 0.5 * span), Box("pretension_gain", 0.5, 2.0, log=True)]
     return []
@@ -251,6 +252,8 @@ class Problem:
         self.base = effects
         self.z0 = float(z0)
         self.error_model = error_model if error_model is not None and error_model.theta.size else None
+        lo_u, hi_u = np.percentile(self.u, [0.5, 99.5])
+        self.travel_step = TRAVEL_STEP * max(float(hi_u - lo_u), 1e-9)
         self.split = split or make_split(self.t, self.u)
         self.tau = self.t - self.t[0]
         self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
@@ -260,8 +263,10 @@ class Problem:
         x = apply_input_effects(effects, self.t, self.u)
         p = self._core_params(effects)
         self._z0_alg = algebraic_z0(p, x, self.w) * p.az  # in mm of tendon: comparable across friction scales
-        w0 = forward(p, x, z0=self.z0)[0]
-        self._core[self._key(effects)] = self._corrected(x, w0)
+        # the candidates run on the compressed path, and so does the nominal they are compared with, unless it
+        # leaves the model's monotone range: then it is run uncapped, exactly as ``predict`` would
+        if not np.all(np.isfinite(self.core(effects))):
+            self._core[self._key(effects)] = self._corrected(x, forward(p, x, z0=self.z0)[0])
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
@@ -296,12 +301,17 @@ class Problem:
         p = self._core_params(eff)
         self.evaluations += 1
         w = np.empty_like(x)
-        z = np.empty_like(x)
-        cap = max(10, int(MAX_SATURATED * x.size))
+        idx = travel_grid(x, self.travel_step)
+        xk = np.ascontiguousarray(x[idx])
+        wk = np.empty_like(xk)
+        zk = np.empty_like(xk)
+        cap = max(10, int(MAX_SATURATED * xk.size))
         z0 = self.z0_for(p, x)
-        if not _reachable(p, x) or forward_run_capped(p.to_array(), x, rest_warp(p, float(x[0]), z0), z0,
-                                                      w, z, cap) < 0:
+        if not _reachable(p, x) or forward_run_capped(p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0,
+                                                      wk, zk, cap) < 0:
             w[:] = np.nan  # beyond the model's monotone range: not a candidate
+        else:
+            fill_along_travel(x, idx, wk, w)
         w = self._corrected(x, w)
         self._core[key] = w
         if len(self._core) > 8:
@@ -430,7 +440,7 @@ class Problem:
         lo, hi = max(0.0, x0 - 1.0 / 12), min(1.0, x0 + 1.0 / 12)
         c0 = cost(s0)
         r = minimize_scalar(lambda x: cost(np.array([x])), bounds=(lo, hi), method="bounded",
-                            options={"xatol": 1e-4, "maxiter": 40})
+                            options={"xatol": 5e-4, "maxiter": 30})
         return np.array([r.x]) if r.fun <= c0 else s0
 
     @staticmethod

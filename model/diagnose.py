@@ -139,8 +139,8 @@ class DiagnoseOptions:
     decision: Decision = field(default_factory=Decision)
     alternatives: tuple[Decision, ...] = ()  # also report the verdict each of these decisions gives
     ambiguity_alpha: float = 0.05  # a runner-up not worse than the winner at this level is an equal explanation
-    max_evals: int = 150  # Nelder-Mead evaluations per joint fit
-    joint_refits: int = 3  # candidates per round refitted jointly with the effects already chosen
+    max_evals: int = 120  # Nelder-Mead evaluations per joint fit
+    joint_refits: int = 2  # candidates per round refitted jointly with the effects already chosen
     effects: tuple[str, ...] = EFFECT_NAMES  # the candidates
     use_model_error: bool = True  # apply the model-error model MODEL.json carries, if any
 
@@ -261,10 +261,10 @@ class Explorer:
         for i, c in enumerate(remaining):
             if self.progress:
                 self.progress(label, i, len(remaining))
-            # screen with a short joint fit (the chosen effects may move: effects interact), then refit the
-            # most promising ones fully
-            fits[c] = prob.fit(selected + (c,), start=cur.effects, grid_for=c,
-                               max_evals=opt.max_evals if not selected else opt.max_evals // 3)
+            # screen with the chosen effects held (their linear parameters still move), then refit the most
+            # promising jointly: effects interact, and a chosen one may have soaked up part of the new one
+            fits[c] = prob.fit(selected + (c,), start=cur.effects, grid_for=c, free_nonlinear=(c,),
+                               max_evals=opt.max_evals)
         if selected:
             for c in sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]:
                 f = prob.fit(selected + (c,), start=fits[c].effects, grid_for="", max_evals=opt.max_evals)
@@ -301,7 +301,7 @@ class Explorer:
         if key not in self.fits:
             if self.progress:
                 self.progress("joint refit", 0, 1)
-            f = self.prob.fit(selected, start=cur.effects, grid_for="", max_evals=3 * self.opt.max_evals)
+            f = self.prob.fit(selected, start=cur.effects, grid_for="", max_evals=2 * self.opt.max_evals)
             self.fits[key] = f if f.train_mse <= cur.train_mse else cur
         return self.fits[key]
 
@@ -354,7 +354,10 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
             break
         best = max(acc, key=lambda j: j.penalised)
         if rnd == 0:
-            others = sorted((j for j in acc if j is not best), key=lambda j: -j.penalised)
+            # the runner-up gets a second round of its own only when it explains nearly as much (at least half
+            # the winner's gain): only then can the winner be imitating it together with another effect
+            others = sorted((j for j in acc if j is not best and j.gain.gain >= 0.5 * best.gain.gain),
+                            key=lambda j: -j.penalised)
             runner_up = others[0] if others else None
         chosen_from[best.name] = cur
         sel = sel + (best.name,)

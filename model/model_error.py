@@ -87,6 +87,66 @@ def travel_since_reversal(x, eps):
     return s, d, a
 
 
+@njit(cache=True)
+def _correction(x, w, v, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
+    n = x.shape[0]
+    out = np.empty(n)
+    eps = DEADBAND * x_span
+    direction = 1.0
+    ext = x[0]
+    rev = x[0]
+    prev = 0.0
+    started = False
+    for k in range(n):
+        xv = x[k]
+        if not started:
+            if abs(xv - x[0]) > eps:
+                direction = 1.0 if xv > x[0] else -1.0
+                started = True
+                ext = xv
+        elif direction > 0:
+            if xv > ext:
+                ext = xv
+            elif ext - xv > eps:
+                prev = ext - rev
+                direction, rev, ext = -1.0, ext, xv
+        else:
+            if xv < ext:
+                ext = xv
+            elif xv - ext > eps:
+                prev = rev - ext
+                direction, rev, ext = 1.0, ext, xv
+        s = direction
+        d = abs(xv - rev)
+        h = (w[k] - w_center) / w_scale
+        h = min(max(h, -LEVEL_CLIP), LEVEL_CLIP)
+        p1 = h
+        p2 = 1.5 * h * h - 0.5
+        p3 = 2.5 * h * h * h - 1.5 * h
+        acc = theta[0] + theta[1] * p1 + theta[2] * p2 + theta[3] * p3
+        j = 4
+        if nsets >= 2:
+            acc += s * (theta[j] + theta[j + 1] * p1 + theta[j + 2] * p2)
+            j += 3
+        if nsets >= 3:
+            for i in range(trans_l.shape[0]):
+                acc += theta[j] * s * math.exp(-d / (trans_l[i] * x_span))
+                j += 1
+        if nsets >= 4:
+            acc += theta[j] * v[k] + theta[j + 1] * v[k] * p1
+            j += 2
+        if nsets >= 5:
+            leg = min(prev / x_span, 1.0)
+            rel = min(d / max(prev, eps), 2.0)
+            for i in range(mem_l.shape[0]):
+                acc += theta[j] * s * math.exp(-rel / mem_l[i])
+                j += 1
+            acc += theta[j] * s * leg + theta[j + 1] * s * leg * leg
+            j += 2
+        out[k] = acc
+    return out
+
+
 def _smooth_rate(t: np.ndarray, w: np.ndarray) -> np.ndarray:
     r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
@@ -125,10 +185,17 @@ class ErrorModel:
         return design(t, x, w, self.w_center, self.w_scale, self.x_span, self.rate_scale, self.sets)
 
     def correction(self, t, x, w) -> np.ndarray:
-        """Warp (deg) to add to the model's core output along input x and model warp w."""
+        """Warp (deg) to add to the model's core output along input x and model warp w (one compiled pass,
+        the same as ``features(t, x, w) @ theta``)."""
+        w = np.ascontiguousarray(w, dtype=np.float64)
         if self.theta.size == 0:
-            return np.zeros(np.size(w))
-        return self.features(t, x, w) @ self.theta
+            return np.zeros(w.size)
+        nsets = len(self.sets)
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
+        return _correction(np.ascontiguousarray(x, dtype=np.float64), w, v, self.theta, self.w_center,
+                           self.w_scale, self.x_span, nsets, np.array(TRANSITION_LENGTHS),
+                           np.array(MEMORY_LENGTHS))
 
     def to_dict(self) -> dict:
         return {"format": FORMAT, "w_center": self.w_center, "w_scale": self.w_scale, "x_span": self.x_span,

@@ -120,3 +120,14 @@ def test_a_damaged_model_error_field_is_refused_with_a_reason(change, needle):
         ErrorModel.from_dict(d)
     with pytest.raises(ValueError, match=needle):
         ModelFile.from_dict({"format": "warpbridge-model/1", "params": P.to_dict(), "model_error": d})
+
+
+def test_the_compiled_correction_is_the_feature_matrix_times_theta():
+    t, u, w = _log(seed=8)
+    rng = np.random.default_rng(9)
+    span = float(np.ptp(u))
+    for k in range(1, len(FEATURE_SETS) + 1):
+        sets = FEATURE_SETS[:k]
+        X = design(t, u, w, 6.0, 4.0, span, 25.0, sets)
+        em = ErrorModel(6.0, 4.0, span, 25.0, sets, rng.standard_normal(X.shape[1]))
+        np.testing.assert_allclose(em.correction(t, u, w), X @ em.theta, rtol=0, atol=1e-10)
