@@ -223,8 +223,11 @@ class BoucWen(Family):
             x = math.exp(0.5 * s * math.sin(th)) * (x - 0.2 * span * s * math.cos(th))
         p = self.p.copy()
         s, a, _ = _size(spec, "friction")
-        if s > 0:
-            p[3] *= math.exp(math.copysign(s, a))
+        if s > 0:  # the loop scaled about the middle of its band
+            c = math.exp(math.copysign(s, a))
+            hi, lo = bw_saturation(p)
+            p[2] += p[3] * (1.0 - c) * 0.5 * (hi + lo)
+            p[3] *= c
         zero = np.zeros(t.size)
         w = bw_run(p, x, zero, 0.0, 0.0, 0.0, 0.002 * span)
         s, _, b = _size(spec, "aero_load")

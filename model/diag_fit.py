@@ -44,6 +44,7 @@ from warpbridge.model.effects import (
     apply_input_effects,
     drift_shape,
     dynamic_pressure_kpa,
+    friction_core,
     lagged,
 )
 from warpbridge.model.identify import reversal_indices, warmup_end
@@ -273,9 +274,7 @@ class Problem:
         return tuple(getattr(eff, f) for f in INPUT_FIELDS)
 
     def _core_params(self, eff: Effects) -> BoucWenParams:
-        if eff.friction_scale == 1.0:
-            return self.params
-        return replace(self.params, az=self.params.az * eff.friction_scale)
+        return friction_core(self.params, eff.friction_scale)
 
     def _corrected(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
         if self.error_model is None or not np.all(np.isfinite(w)):

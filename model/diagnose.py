@@ -63,6 +63,7 @@ from warpbridge.model.effects import (
     Effects,
     apply_input_effects,
     apply_output_effects,
+    friction_core,
 )
 from warpbridge.model.identify import noise_floor
 from warpbridge.model.initial_state import estimate_z0
@@ -203,7 +204,7 @@ def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
 def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) -> float:
     """z0 that explains the log's first samples with the model, its effects and its error correction."""
     eff = model.effects
-    p = model.params if eff.friction_scale == 1.0 else replace(model.params, az=model.params.az * eff.friction_scale)
+    p = friction_core(model.params, eff.friction_scale)
     x = apply_input_effects(eff, t, u)
     if not eff.active() and em is None:
         return estimate_z0(p, x, w)

@@ -11,11 +11,18 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
-| friction    | friction_scale                 | az -> friction_scale * az (loop widens or narrows)   |
+| friction    | friction_scale                 | the loop widens or narrows about its middle          |
 | pretension  | pretension_offset_mm, _gain    | u_eff = gain * (u - offset)                          |
 | sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
 | drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
 | aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
+
+Friction scales the hysteretic part of the tendon travel about the middle of
+its band, ``az z -> az (z_mid + s (z - z_mid))`` with z_mid halfway between
+the saturation levels of loading and unloading: the loop widens or narrows
+while its centre line (the elastic backbone) stays where it was. (Scaling az
+alone would also move the loop by ``(s - 1) az z_mid``, which a fit then has
+to undo with a pre-tension offset.)
 
 The drift is a sensor zero warming up: it starts at ``drift_deg_s`` deg/s and
 settles with time constant ``drift_tau_s``; ``drift_tau_s = inf`` (the default,
@@ -136,6 +143,19 @@ class Effects:
                 except (TypeError, ValueError):
                     raise ValueError(f"effect parameter {f!r} must be a number") from None
         return cls(**kw)
+
+
+def friction_core(params, scale: float):
+    """Bouc-Wen parameters (``model.boucwen.BoucWenParams``) with the friction effect folded in: az scaled
+    by ``scale`` and a3 moved so that the middle of the hysteresis band stays put (see the module docstring)."""
+    if scale == 1.0:
+        return params
+    try:
+        hi, lo = params.z_saturation(1.0)
+    except (ValueError, ZeroDivisionError, OverflowError):
+        hi = lo = math.nan
+    mid = 0.5 * (hi + lo) if math.isfinite(hi) and math.isfinite(lo) else 0.0
+    return replace(params, az=params.az * scale, a3=params.a3 + params.az * (1.0 - scale) * mid)
 
 
 def dynamic_pressure_kpa(airspeed) -> np.ndarray:

@@ -347,14 +347,14 @@ def bench_error_model(params, effects, t, u, w) -> ErrorModel:
     The model is free-run on the logged input from the initial state its opening stretch gives; samples up
     to the first reversal (capped at a tenth of the log) are left out, as in identification."""
     from warpbridge.model.boucwen import forward
-    from warpbridge.model.effects import apply_input_effects, apply_output_effects
+    from warpbridge.model.effects import apply_input_effects, apply_output_effects, friction_core
     from warpbridge.model.identify import noise_floor, warmup_end
     from warpbridge.model.initial_state import estimate_z0
 
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
-    p = params if effects.friction_scale == 1.0 else _scaled_az(params, effects.friction_scale)
+    p = friction_core(params, effects.friction_scale)
     x = apply_input_effects(effects, t, u)
     z0 = estimate_z0(p, x, w)
     w_core = forward(p, x, z0=z0)[0]
@@ -363,8 +363,3 @@ def bench_error_model(params, effects, t, u, w) -> ErrorModel:
     return fit_error_model(t, x, w_core, w_meas=w - (w_pred - w_core), noise=noise_floor(w),
                            start=warmup_end(u))
 
-
-def _scaled_az(params, factor: float):
-    from dataclasses import replace
-
-    return replace(params, az=params.az * factor)

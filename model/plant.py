@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from warpbridge.model.effects import (
     apply_output_effects,
     drift_shape,
     dynamic_pressure_kpa,
+    friction_core,
 )
 
 
@@ -32,10 +33,8 @@ class Plant:
     effects: Effects = field(default_factory=Effects)
 
     def core_params(self) -> BoucWenParams:
-        """Bouc-Wen parameters with the friction effect folded in (az scaled)."""
-        if self.effects.friction_scale == 1.0:
-            return self.params
-        return replace(self.params, az=self.params.az * self.effects.friction_scale)
+        """Bouc-Wen parameters with the friction effect folded in (the loop scaled about its middle)."""
+        return friction_core(self.params, self.effects.friction_scale)
 
     def simulate(self, t, u, airspeed=None, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(w_true, w_meas) in deg for tendon command u (mm) sampled at times t (s)."""
