@@ -77,9 +77,9 @@ from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic  # noq
 from warpbridge.model import excitation  # noqa: E402
 
 IDENT_SOURCES = ["model/identify.py", "model/kernels.py", "model/boucwen.py", "model/initial_state.py",
-                 "bridge/commands/logfile.py", "benchmarks/plants.py", "benchmarks/truth_chain.py",
-                 "benchmarks/truth_cores.py", "sitl/sheath.py"]
-DIAG_SOURCES = IDENT_SOURCES + ["model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
+                 "bridge/commands/logfile.py"]
+DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
+                                "sitl/sheath.py", "model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
                                 "model/diag_where.py", "model/diagnose.py", "model/model_error.py",
                                 "model/effects.py", "model/plant.py", "bridge/commands/diagnose.py",
                                 "bridge/commands/identify.py", "bridge/commands/predict.py",
@@ -153,11 +153,13 @@ def bench_log(plant: Family, seed: int, index: int, bench_s: float, rate: float)
 
 def identified_model(plant: Family, seed: int, index: int, args, work: Path) -> Path:
     """The plant's identified bench model (cached), with its model-error model learned afresh."""
-    key = f"{plant.name}-b{args.bench_duration:g}-r{args.rate:g}-{source_hash(IDENT_SOURCES)}"
-    cached = args.cache / "models" / f"{key}.json"
     lg = bench_log(plant, seed, index, args.bench_duration, args.rate)
     bench = work / f"{plant.name}-bench.csv"
     write_log(bench, lg, with_airspeed=False)
+    # keyed by the bench log itself and the identification sources: a change of the truth side re-identifies
+    # exactly the plants whose bench log it changed
+    key = hashlib.sha256(bench.read_bytes() + source_hash(IDENT_SOURCES).encode()).hexdigest()[:16]
+    cached = args.cache / "models" / f"{plant.name}-{key}.json"
     if not cached.is_file():
         cached.parent.mkdir(parents=True, exist_ok=True)
         tmp_model = work / f"{plant.name}-ident.json"

@@ -103,6 +103,10 @@ class Family:
     def quantum(self) -> float:
         return self.bench.quant_deg
 
+    def aero_scale(self) -> float:
+        """Aerodynamic load per kPa at full size: a tendon stretch (mm) for the phenomenological cores."""
+        return 0.5 * self.span
+
 
 def _size(spec: Spec, name: str) -> tuple[float, float, float]:
     s, (a, b) = spec.get(name, (0.0, (0.0, 0.0)))
@@ -137,7 +141,7 @@ def physical_path(fam: Family, t, u, airspeed, spec: Spec, seed: int) -> tuple[n
     q = dynamic_pressure_kpa(airspeed) if airspeed is not None else np.zeros(t.size)
     s, _, mix = _size(spec, "aero_load")
     m = 0.5 * (mix + 1.0)
-    aero = (0.5 * span * s * (1.0 - m), 0.05 * span * s * m)  # mm per kPa, and per kPa and deg of warp
+    aero = fam.aero_scale() * s * (1.0 - m), 0.1 * fam.aero_scale() * s * m  # per kPa, and per kPa and deg
     w = fam.core(x, q, friction, pretension_of(spec, span), aero)
     s, kappa, _ = _size(spec, "sensor_lag")
     taus = (b.sensor_tau_s,)
@@ -360,9 +364,70 @@ def draw_dahl(rng: np.random.Generator) -> Dahl:
     return Dahl(hc, a, float(k), float(k2), float(c0), u_lo, u_hi, Bench.draw(rng, u_hi - u_lo))
 
 
+# ---- the physics-based sheath (``sitl.sheath``) ---------------------------------------------------
+
+def _sheath_module():
+    from warpbridge.sitl import sheath  # the lead merges it into main; the family is skipped until then
+
+    return sheath
+
+
+@dataclass
+class Sheath(Family):
+    """N friction nodes along the sheath (capstan law), an elastic tendon, a pre-tension; the aerodynamic
+    moment is the sheath plant's own trailing-edge load. Friction scales mu, pre-tension scales the rig's
+    tension at rest (and the stiffness factor the wing's)."""
+
+    params: object = None
+    u_lo: float = 0.0
+    u_hi: float = 1.0
+    bench: Bench = field(default_factory=Bench)
+    family: str = "sheath"
+    name: str = ""
+
+    def aero_scale(self) -> float:
+        """Trailing-edge load (N) per kPa at full size: a third of the rig's pull for the 12 deg range."""
+        return 12.0 * self.params.mm_per_deg * self.params.k_wing / 3.0
+
+    def core(self, x, q, friction, pre, aero):
+        sh = _sheath_module()
+        off, stiff = pre
+        # pre-tension: a relative change of the rig's tension at rest (the offset part of the spec, over a
+        # fifth of the span, maps to a factor e^(+-1) at full size), the stiffness part stiffens the wing
+        rel = off / (0.2 * self.span)
+        p = self.params.with_changes(mu=self.params.mu * friction,
+                                     pretension_n=self.params.pretension_n * math.exp(rel),
+                                     k_wing=self.params.k_wing * stiff)
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        c0, c1 = aero
+        w = sh.SheathPlant(p, u0=float(x[0])).simulate(x, 0.0)
+        if c0 == 0.0 and c1 == 0.0 or not np.any(q):
+            return w
+        for _ in range(2):  # the load follows the warp it bends back: two fixed-point passes
+            load = q * (c0 + c1 * w)
+            w = sh.SheathPlant(p, u0=float(x[0])).simulate(x, load)
+        return w
+
+
+def draw_sheath(rng: np.random.Generator) -> Sheath:
+    """A rig from ``sitl.sheath.random_sheath`` (bend, mu, nodes, stiffnesses, pre-tension over a wide range),
+    kept when 0..12 deg of warp needs a sensible tendon travel."""
+    sh = _sheath_module()
+    for _ in range(100):
+        params = sh.random_sheath(rng)
+        try:
+            u_lo, u_hi = sh.SheathPlant(params).travel_range(12.0)
+        except RuntimeError:
+            continue
+        if 1.0 < u_hi - u_lo < 40.0:
+            span = u_hi - u_lo
+            return Sheath(params, u_lo + 0.1 * span, u_hi, Bench.draw(rng, span))
+    raise RuntimeError("could not draw a usable sheath rig")
+
+
 # ---- drawing ------------------------------------------------------------------------------------
 
-FAMILIES = ("bouc-wen", "bouc-wen-phys", "prandtl-ishlinskii", "dahl")
+FAMILIES = ("bouc-wen", "bouc-wen-phys", "prandtl-ishlinskii", "dahl", "sheath")
 
 
 def draw_family(family: str, rng: np.random.Generator) -> Family:
@@ -374,6 +439,8 @@ def draw_family(family: str, rng: np.random.Generator) -> Family:
         return draw_prandtl_ishlinskii(rng)
     if family == "dahl":
         return draw_dahl(rng)
+    if family == "sheath":
+        return draw_sheath(rng)
     raise ValueError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
 
 
