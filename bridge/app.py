@@ -28,7 +28,6 @@ subsystem's exception stops the loop.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import select
@@ -47,15 +46,23 @@ from warpbridge.bridge.link import FcLink
 from warpbridge.bridge.loop_timer import LoopTimer, TimerStats
 from warpbridge.bridge.mavlink_env import mavlink
 from warpbridge.bridge.mixer import Mixer
+from warpbridge.bridge.outputcheck import OutputFunctionCheck, SourceWatch, Verdict
 from warpbridge.bridge.param_server import ParamServer
 from warpbridge.bridge.params import ParamSpec, ParamStore
 from warpbridge.bridge.signing import policy_from_config
+from warpbridge.bridge.startup import (
+    load_model,
+    load_model_file,
+    servo_calibration,
+    servo_limits,
+    tendon_limits,
+)
 from warpbridge.bridge.telemetry import MODE_CODES, Telemetry
 from warpbridge.hw import DeviceError, open_sensor, open_servo
 from warpbridge.hw.calibration import SensorCalibration, ServoCalibration
 from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.compensation import INVERTIBLE, folded_params
-from warpbridge.model.modelfile import ModelFile
+from warpbridge.model.compensation import folded_params
+from warpbridge.model.initial_state import algebraic_z0
 
 log = logging.getLogger(__name__)
 
@@ -70,33 +77,8 @@ ACK_COMMANDS = (mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_ACTUATOR)
 TAG = {"left": "L", "right": "R"}
 # the model parameters in MAVLink order: WB_BW_<suffix> -> BoucWenParams field (b as B1..B6)
 BW_FIELDS = ("A1", "A2", "A3", "AZ", "A", "N", "B1", "B2", "B3", "B4", "B5", "B6")
-
-
-def load_model(config: Config) -> BoucWenParams:
-    """The Bouc-Wen parameters named by ``[model] file`` (``"paper"`` -> the paper's), with the file's
-    friction and pre-tension effects folded in exactly."""
-    mf = load_model_file(config)
-    return folded_params(mf.params, mf.effects)
-
-
-def load_model_file(config: Config) -> ModelFile:
-    """The whole ``[model] file``: parameters and effects."""
-    if config.model_file is None:
-        return ModelFile(params=BoucWenParams.paper())
-    try:
-        doc = json.loads(config.model_file.read_text(encoding="utf-8"))
-        mf = ModelFile.from_dict(doc)
-    except RecursionError:
-        raise UserError(f"[model] file: {config.model_file}: JSON nested too deeply") from None
-    except OSError as e:
-        raise UserError(f"[model] file: cannot read {config.model_file}: {e.strerror or e}") from None
-    except (ValueError, TypeError, UnicodeDecodeError) as e:
-        raise UserError(f"[model] file: {config.model_file}: {e}") from None
-    left = [e for e in mf.effects.active() if e not in INVERTIBLE]
-    if left:
-        log.warning("model effects %s cannot be inverted by a feed-forward; the PI trim handles them",
-                    ", ".join(left))
-    return mf
+SENSOR_MODES = ("pi", "ff+pi")  # modes that close the loop on the warp sensor
+__all__ = ["Bridge", "RunResult", "load_model", "load_model_file", "run_bridge", "servo_limits"]
 
 
 def _bw_values(p: BoucWenParams) -> list[float]:
@@ -162,9 +144,13 @@ class Bridge:
     """All parts of the running bridge; ``tick()`` is one control cycle."""
 
     def __init__(self, config: Config, *, servo: Any = None, sensor: Any = None, link: Any = None,
-                 clock: Callable[[], float] = time.monotonic, connect_timeout: float = 0.0) -> None:
-        """``servo``/``sensor``/``link`` replace the configured ones (the caller keeps owning them)."""
+                 clock: Callable[[], float] = time.monotonic, connect_timeout: float = 0.0,
+                 opened_servo: Any = None) -> None:
+        """``servo``/``sensor``/``link`` replace the configured ones (the caller keeps owning them);
+        ``opened_servo`` is the configured servo backend already open (``startup.command_neutral``),
+        handed over to the bridge, which then owns it."""
         self.config, self.clock = config, clock
+        self._starting = True
         model_file = load_model_file(config)
         self.model = folded_params(model_file.params, model_file.effects)
         self.ff_effects = model_file.effects.only(("aero_load", "backlash"))  # inverted per step
@@ -182,23 +168,24 @@ class Bridge:
         self.wings: dict[str, WingState] = {}
         for name in WINGS:
             wc = config.wings[name]
+            scal = servo_calibration(wc)
             try:
-                scal = ServoCalibration(wc.servo.pulse_min_us, wc.servo.pulse_max_us, wc.servo.pulse_zero_us,
-                                        wc.servo.mm_per_us)
                 ecal = SensorCalibration(wc.sensor.counts, wc.sensor.deg) if wc.sensor_channel is not None else None
             except ValueError as e:
                 raise UserError(f"[wing.{name}] calibration: {e}") from None
-            lo, hi = scal.mm_range
             c = wc.control
+            u_min, u_max = tendon_limits(wc)
             ctl = WingController(self.model, mode=c.mode, kp=c.kp, ki=c.ki, i_max=c.i_max_mm,
-                                 u_min=lo if c.u_min_mm is None else c.u_min_mm,
-                                 u_max=hi if c.u_max_mm is None else c.u_max_mm, w_max=wc.max_warp_deg,
+                                 u_min=u_min, u_max=u_max, w_max=wc.max_warp_deg,
                                  deadband=self._deadband(name), w0=self.mixer.wings[name].neutral_deg)
             ctl.set_effects(self.ff_effects)
             self.wings[name] = WingState(wc, ctl, scal, ecal, setpoint=self.mixer.wings[name].neutral_deg)
         self.servo, self.sensor = servo, sensor
         self._owns_devices = servo is None
         self.log = None
+        channels = {name: w.cfg.source_channel for name, w in self.wings.items()}
+        self.outputs = OutputFunctionCheck(self.link, channels)
+        self.watch = SourceWatch(channels, on_still=self._source_still)
         self.tuning = FieldTuning(
             self.wings, self.link, self.telemetry, base_model=lambda: self.model, params_file=config.params_file,
             clock=clock, loop_hz=config.loop.rate_hz, allowed_gcs=config.link.gcs_sysid_allow,
@@ -220,14 +207,21 @@ class Bridge:
             self._servo_retry_at = 0.0
             self._servo_tries = 0
             if servo is None:
-                self._open_devices(initial=True)
+                self._open_devices(initial=True, opened=opened_servo)
             self.log = CycleLog(config.loop.log) if config.loop.log is not None else None
         except BaseException:
+            if opened_servo is not None and self.servo is None:
+                opened_servo.close()
             self.close()
             raise
+        self._start_from_sensor()
+        self._starting = False
+        self._announced = False
+        self._mode_ran: dict[str, str] = {}
         self.start = clock()
         self.failsafe = True  # until the first servo message
         self.failsafe_entries = 0
+        self._fs_since = self.start  # when the current failsafe began
         self.cycles = 0
         self._last_tick: float | None = None
         self._next_error_poll = 0.0
@@ -239,12 +233,12 @@ class Bridge:
 
     # ------------------------------------------------------------------ devices
 
-    def _open_devices(self, initial: bool = False) -> None:
+    def _open_devices(self, initial: bool = False, opened: Any = None) -> None:
         cfg = self.config
         try:
-            self.servo = open_servo(cfg.servo_backend, mavlink_sender=self.link, limits=servo_limits(cfg),
-                                    **({"target_system": self.link.system_id or 1}
-                                       if is_fc_backend(cfg.servo_backend) else {}))
+            self.servo = opened if opened is not None else open_servo(
+                cfg.servo_backend, mavlink_sender=self.link, limits=servo_limits(cfg),
+                **({"target_system": self.link.system_id or 1} if is_fc_backend(cfg.servo_backend) else {}))
         except ValueError as e:
             raise UserError(f"[servo] backend: {e}") from None
         except DeviceError as e:
@@ -292,9 +286,16 @@ class Bridge:
         """Apply a WB_* value live to both wings (raises ValueError to refuse it)."""
         ctls = [w.ctl for w in self.wings.values()]
         if name == "WB_MODE":
+            mode = MODES[int(v)]
+            blind = [n for n in self.wings if not self._wing_has_sensor(n)]
+            if mode in SENSOR_MODES and len(blind) == len(self.wings) and not self._starting:
+                raise ValueError(f"{mode} needs a warp sensor and none is configured; mode stays "
+                                 f"{ctls[0].mode}")
             for c in ctls:
-                c.set_mode(MODES[int(v)])
-            self.telemetry.status(SEV_INFO, f"WB mode {MODES[int(v)]}")
+                c.set_mode(mode)
+            if not self._starting:
+                self.telemetry.status(SEV_INFO, f"WB mode {mode}{self._mode_note(mode)}")
+                log.info("mode %s asked%s", mode, self._mode_note(mode))
         elif name in ("WB_KP", "WB_KI", "WB_I_MAX"):
             key = {"WB_KP": "kp", "WB_KI": "ki", "WB_I_MAX": "i_max"}[name]
             for c in ctls:
@@ -320,6 +321,83 @@ class Bridge:
             self.tuning.base_changed()  # each wing: its calibration applied to the new base model
         elif FieldTuning.owns(name):
             self.tuning.apply_param(name, v)
+
+    # ------------------------------------------------------------------ what runs, and telling the user
+
+    def _wing_has_sensor(self, name: str) -> bool:
+        """Whether the wing has a warp sensor configured (a working one or not)."""
+        return self.has_sensor and self.wings[name].sensor_cal is not None
+
+    def _mode_note(self, mode: str) -> str:
+        """``""`` when every wing can run ``mode``; else what runs instead, e.g. ``" (ff runs: no sensor)"``."""
+        if mode not in SENSOR_MODES:
+            return ""
+        blind = [n for n in self.wings if not self._wing_has_sensor(n)]
+        if not blind:
+            return ""
+        if len(blind) == len(self.wings):
+            return " (ff runs: no sensor)"
+        return f" ({', '.join(blind)}: ff, no sensor)"
+
+    def _start_from_sensor(self) -> None:
+        """With a sensor, start each wing's feed-forward state where the wing is: the measured warp and the
+        tendon position give the hysteretic state algebraically (``model.initial_state.algebraic_z0``)."""
+        for name, w in self.wings.items():
+            if not self._wing_has_sensor(name) or self.sensor is None or self.servo is None:
+                continue
+            try:
+                raw = self.sensor.read_counts(w.cfg.sensor_channel)
+                pulse = tendon_pulse(self.servo, w.cfg.servo_channel)
+                if raw is None or pulse is None or not math.isfinite(raw):
+                    log.info("%s wing: feed-forward starts at rest (no %s to start from)", name,
+                             "sensor reading" if raw is None else "tendon position")
+                    continue
+                lo, hi = min(w.sensor_cal.counts), max(w.sensor_cal.counts)
+                if not lo <= raw <= hi:
+                    log.warning("%s wing: sensor reading %g outside its calibration; feed-forward starts at rest",
+                                name, raw)
+                    continue
+                warp = self.tuning.measurement(name, w.sensor_cal.deg_for_counts(raw))
+                u = w.servo_cal.mm_for_pulse(pulse)
+                est = self.tuning.est[name].estimate  # the model flies under the pre-tension estimate
+                u_model = (u - est.offset) * est.gain
+                z0 = algebraic_z0(self.tuning.wing_model(name), [u_model], [warp])
+                w.ctl.start_state(warp, z0)
+                log.info("%s wing: feed-forward starts from the measured warp %.2f deg at tendon %.2f mm "
+                         "(pulse %.0f us): z0 = %.3f", name, warp, u, pulse, z0)
+            except Exception as e:  # noqa: BLE001 - a device that fails here is handled by the cycle
+                log.warning("%s wing: cannot read the start state (%s); feed-forward starts at rest", name, e)
+
+    def _announce(self) -> None:
+        """Once the link can carry them: the start message, and what runs when a mode needs a missing sensor."""
+        if self._announced:
+            return
+        mode = next(iter(self.wings.values())).ctl.mode
+        note = self._mode_note(mode)
+        sensor = self.config.sensor_backend.split(":")[0] if self.has_sensor else "no sensor"
+        text = f"WB started: {mode}{note}, {sensor}, {self.config.loop.rate_hz:g} Hz"
+        if self.telemetry.status(SEV_INFO, text, key="start"):
+            self._announced = True
+            if note:
+                self.telemetry.status(SEV_WARNING, f"WB mode {mode} needs a warp sensor{note}", key="mode-sensor")
+
+    def _report_outputs(self, verdicts: list[Verdict]) -> None:
+        """The FC's answer about each wing's source output: logged, and a STATUSTEXT unless it is an aileron."""
+        for v in verdicts:
+            key = f"out-{v.wing}"
+            self.telemetry.clear(key)
+            if v.kind == "aileron":
+                log.info("%s", v.text())
+                continue
+            log.warning("%s", v.text())
+            self.telemetry.status(SEV_NOTICE if v.kind == "mixed" else SEV_WARNING, v.status(), key=key,
+                                  log_it=False)
+
+    def _source_still(self, wing: str, channel: int, pwm: float, seconds: float) -> None:
+        log.warning("%s wing: FC output %d has not moved (%.0f us) in %.0f s of armed flight: "
+                    "is it the aileron output?", wing, channel, pwm, seconds)
+        self.telemetry.status(SEV_WARNING, f"WB {TAG[wing]} out {channel} still {seconds:.0f} s in flight: "
+                                           f"aileron?", key=f"still-{wing}", log_it=False)
 
     # ------------------------------------------------------------------ the cycle
 
@@ -364,11 +442,14 @@ class Bridge:
         silent = link.servo_time is None or now - link.servo_time > self.fs_timeout
         if silent and not self.failsafe:
             self.failsafe_entries += 1
+            self._fs_since = now
         if not silent and self.failsafe:
+            log.info("servo outputs from the FC %s after %.1f s: following the FC",
+                     "back" if self.failsafe_entries else "arrived", now - self._fs_since)
             for key in ("fs-start", "fs"):
                 if self.telemetry.active(key):
                     self.telemetry.clear(key)
-                    self.telemetry.status(SEV_NOTICE, "WB servo outputs back, following FC")
+                    self.telemetry.status(SEV_NOTICE, "WB servo outputs back, following FC", log_it=False)
         self.failsafe = silent
         neutral = self.mixer.neutral()
         if silent:  # keyed: sent once, as soon as the link knows the FC (retried until then)
@@ -414,8 +495,11 @@ class Bridge:
         self._last_tick = now
         self.cycles += 1
         try:
-            self.params.poll(self.tuning.handle_messages(self.link.poll()))
+            messages, verdicts = self.outputs.take(self.link.poll(), now)
+            self.params.poll(self.tuning.handle_messages(messages))
             self._fc_servo_sync()
+            self._report_outputs(verdicts)
+            self._announce()
         except Exception:  # noqa: BLE001 - the link or a GCS request must not stop the loop
             log.exception("link/parameter handling failed")
         if self._load_report and self.telemetry.status(SEV_WARNING, self._load_report, key="params-load"):
@@ -427,6 +511,8 @@ class Bridge:
             setpoints = self.mixer.neutral()
         if self._servo_down_since is not None:
             self._servo_retry(now)
+        if not self.failsafe:
+            self.watch.update(self.link.servo_pwm, self.link.armed, self.link.airspeed, dt)
         rows: dict[str, dict[str, float | None]] = {}
         modes = []
         for name, w in self.wings.items():
@@ -440,6 +526,11 @@ class Bridge:
                 pulse = w.servo_cal.pulse_for_mm(cmd.u_cmd)
                 row.update(ff=cmd.ff, pi=cmd.pi, u=cmd.u_cmd, warp=measured, pulse=pulse)
                 modes.append(cmd.mode)
+                if self._mode_ran.get(name) != cmd.mode:
+                    if name in self._mode_ran or cmd.mode != w.ctl.mode:
+                        log.info("%s wing runs %s%s", name, cmd.mode,
+                                 "" if cmd.mode == w.ctl.mode else f" ({w.ctl.mode} asked)")
+                    self._mode_ran[name] = cmd.mode
                 if self._servo_down_since is None and self.servo is not None:
                     self.servo.set_pulse(w.cfg.servo_channel, pulse)
             except DeviceError as e:
@@ -455,6 +546,15 @@ class Bridge:
         mode = "failsafe" if self.failsafe else ("/".join(dict.fromkeys(modes)) or "none")
         self._taps(now, mode, rows)
 
+    def _mode_code(self, mode: str) -> float:
+        """``WB_mode``: what runs. When the wings differ, the mode a wing fell back to (e.g. ff for a wing
+        that lost its sensor), since that is what limits the aircraft."""
+        if mode in MODE_CODES:
+            return MODE_CODES[mode]
+        asked = next(iter(self.wings.values())).ctl.mode
+        ran = [m for m in mode.split("/") if m != asked] or [asked]
+        return MODE_CODES.get(ran[0], -1.0)
+
     def _taps(self, now: float, mode: str, rows: dict[str, dict[str, float | None]]) -> None:
         try:
             t = self.telemetry
@@ -464,7 +564,7 @@ class Bridge:
                     v = r.get(field_)
                     if v is not None and math.isfinite(v):
                         t.named_float(f"{TAG[name]}_{key}", v)
-            t.named_float("WB_mode", MODE_CODES.get(mode, MODE_CODES.get(mode.split("/")[0], -1.0)))
+            t.named_float("WB_mode", self._mode_code(mode))
             if self.link.airspeed is not None:
                 t.named_float("WB_aspd", self.link.airspeed)
             if self.link.servo_time is not None:
@@ -517,14 +617,20 @@ class Bridge:
                 log.exception("closing %s failed", what)
 
 
+def tendon_pulse(servo: Any, channel: int) -> float | None:
+    """The pulse (us) the servo backend is sending on ``channel`` now (Maestro Get Position, the loop
+    backend's last pulse), or None when the backend cannot tell."""
+    for name in ("read_pulse", "pulse"):
+        fn = getattr(servo, name, None)
+        if callable(fn):
+            v = fn(channel)
+            return float(v) if v is not None and math.isfinite(v) and v > 0 else None
+    return None
+
+
 def is_fc_backend(spec: str) -> bool:
     """Whether a ``[servo] backend`` string drives the FC's own outputs (``fc:...``)."""
     return spec.strip().lower().startswith("fc:")
-
-
-def servo_limits(config: Config) -> dict[int, tuple[float, float]]:
-    """Each wing's calibrated pulse range, keyed by its servo channel: the backend's safe range."""
-    return {w.servo_channel: (w.servo.pulse_min_us, w.servo.pulse_max_us) for w in config.wings.values()}
 
 
 def _waiter(bridge: Bridge, wake: bool) -> Callable[[float], None]:
@@ -550,13 +656,17 @@ def _waiter(bridge: Bridge, wake: bool) -> Callable[[float], None]:
 
 
 def run_bridge(config: Config, stop_event: threading.Event | None = None, duration: float | None = None,
-               *, servo: Any = None, sensor: Any = None, link: Any = None) -> RunResult:
+               *, servo: Any = None, sensor: Any = None, link: Any = None, opened_servo: Any = None) -> RunResult:
     """Run the bridge at the loop rate until ``stop_event`` is set or ``duration`` s have passed.
 
-    ``servo``/``sensor``/``link`` replace the configured ones (tests, SITL)."""
-    bridge = Bridge(config, servo=servo, sensor=sensor, link=link)
+    ``servo``/``sensor``/``link`` replace the configured ones (tests, SITL); ``opened_servo`` is the
+    configured servo backend, already open (the bridge owns it)."""
+    bridge = Bridge(config, servo=servo, sensor=sensor, link=link, opened_servo=opened_servo)
     timer = LoopTimer(config.loop.rate_hz, sleep=_waiter(bridge, config.loop.wake_on_message))
-    log.info("bridge running at %g Hz", config.loop.rate_hz)
+    w = next(iter(bridge.wings.values()))
+    log.info("bridge running at %g Hz: FC link %s, servo %s, sensor %s, model %s, mode %s%s", config.loop.rate_hz,
+             config.link.connection, config.servo_backend, config.sensor_backend,
+             "paper" if config.model_file is None else config.model_file, w.ctl.mode, bridge._mode_note(w.ctl.mode))
     try:
         while not (stop_event is not None and stop_event.is_set()):
             if duration is not None and timer.elapsed() >= duration:

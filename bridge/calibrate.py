@@ -17,6 +17,12 @@
   ``WB_CAL_REST`` = 1 swaps current and previous (setting it again undoes it).
   Calibrations persist in ``<params file stem>-cal.json`` beside the parameter
   file (as a pre-tension transform of the base model, so ``WB_BW_*`` still apply).
+  The fitting code (``model.recalibrate``: scipy, compiled kernels) loads only
+  when a calibration starts. In ``warpbridge run``, whose model kernels run
+  interpreted (``model._jit``), the excitation and the fit run in a worker
+  process with compiled kernels, started for the calibration and ended with it:
+  the flight process stays small and its loop never waits on the fit; the
+  excitation begins once the worker has prepared it (a few seconds).
 - **Online adaptation** (``WB_ADAPT``): a ``model.adapt.PretensionEstimator``
   per wing, fed with each cycle's command and measured warp, whose offset and
   gain the controller applies (``WingController.set_pretension``) and whose
@@ -25,6 +31,10 @@
   telemetry (``L_ad_off``, ``L_ad_gain``, ``L_ad_drft``, ``L_ad_st`` and ``R_...``)
   and parameters (``WB_ADL_OFF``, ``WB_ADL_GAIN``, ``WB_ADL_DRFT``, ``WB_ADR_...``),
   published every ``PUBLISH_S`` when they moved; setting one overrides the estimate.
+  With interpreted kernels (``warpbridge run``) the estimator is fed at about
+  ``ADAPT_HZ_INTERPRETED`` (the mean command and warp of the cycles in between):
+  its forward model costs most of an interpreted cycle, and the estimate moves
+  over tens of seconds.
 
 Telemetry ``WB_cal`` holds ``CalState``; ``WB_cal_pct`` the progress in percent.
 """
@@ -37,18 +47,23 @@ import logging
 import math
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from warpbridge.bridge.atomic import write_text_atomic
 from warpbridge.bridge.mavlink_env import mavlink
 from warpbridge.bridge.params import ParamSpec
+from warpbridge.model import _jit
 from warpbridge.model.adapt import AdaptConfig, PretensionEstimator, fold_pretension
 from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.recalibrate import RefitResult, Transform, excitation, refit, refit_full
+from warpbridge.model.transform import Transform
+
+if TYPE_CHECKING:
+    from warpbridge.model.recalibrate import RefitResult
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +77,68 @@ SAFE_LO, SAFE_HI = 0.15, 0.85  # excitation range as fractions of the wing's max
 ENVELOPE_DEG = 2.0  # measured warp this far outside [0, max warp] aborts a calibration
 PUBLISH_S = 10.0  # estimates -> parameters at most this often
 PROGRESS_STEP = 25  # percent between progress STATUSTEXTs
+ADAPT_HZ_INTERPRETED = 25.0  # estimator update rate when the kernels run interpreted
+EDGE_MARGIN = 0.02  # the estimator's shadow models look this far beyond its command
+
+
+def model_top(params: BoucWenParams) -> float:
+    """Largest tendon travel (mm) a model reaches at positive warp: u at the vertex of its centre line plus
+    az times the largest z of a loading run. Beyond it the forward map (tendon -> warp) has no solution and
+    searches at length (hundreds of ms interpreted). inf when the model rises without bound."""
+    if params.a1 >= 0.0:
+        return math.inf
+    w_top = -params.a2 / (2.0 * params.a1)
+    hi, lo = params.z_saturation(1.0)
+    z = max(hi, lo) if params.az > 0 else min(hi, lo)
+    if not math.isfinite(z) or w_top <= 0.0:
+        return math.inf
+    return params.a1 * w_top * w_top + params.a2 * w_top + params.a3 + params.az * z
+
+
+def excitation_task(grid: np.ndarray, ranges: dict[str, tuple[float, float, float, int]]) -> dict[str, np.ndarray]:
+    """Each wing's calibration setpoint over ``grid`` (s): ``ranges[wing] = (lo, hi, start, seed)``, deg."""
+    from warpbridge.model.recalibrate import excitation
+
+    return {name: excitation(grid, lo, hi, start_deg=start, seed=seed)
+            for name, (lo, hi, start, seed) in ranges.items()}
+
+
+def fit_task(base: BoucWenParams, t: np.ndarray, u: np.ndarray, w: np.ndarray, current: Transform,
+             old: BoucWenParams, full: bool) -> RefitResult:
+    """One wing's calibration fit (``model.recalibrate``): the quick refit, then the full model if asked."""
+    from warpbridge.model.recalibrate import refit, refit_full
+
+    quick = refit(base, t, u, w, current=current, old=old)
+    return refit_full(base, t, u, w, lag_s=quick.lag_s, old=old, seed=1) if full else quick
+
+
+class Worker:
+    """Where a calibration computes: this process (compiled kernels) or, when the kernels of this process
+    run interpreted, one worker process with compiled kernels for the calibration's length."""
+
+    def __init__(self) -> None:
+        self.in_process = _jit.mode() == "compiled"
+        self._pool: ProcessPoolExecutor | None = None
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        if self.in_process:
+            fut: Future = Future()
+            try:
+                fut.set_result(fn(*args))
+            except Exception as e:  # noqa: BLE001 - reported through the future
+                fut.set_exception(e)
+            return fut
+        if self._pool is None:
+            import multiprocessing
+
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_jit.compile_kernels)
+        return self._pool.submit(fn, *args)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
 
 
 class CalState(enum.IntEnum):
@@ -158,16 +235,43 @@ def cal_path(params_file: Path | None) -> Path | None:
 
 
 @dataclass
+class _Batch:
+    """The cycles between two estimator updates: mean command, mean warp (None if one was missing), time."""
+
+    n: int = 0
+    u: float = 0.0
+    w: float = 0.0
+    missing: bool = False
+    dt: float = 0.0
+
+    def add(self, u: float, w: float | None, dt: float) -> None:
+        self.n += 1
+        self.u += u
+        self.dt += dt
+        if w is None:
+            self.missing = True
+        else:
+            self.w += w
+
+    def take(self) -> tuple[float, float | None, float]:
+        out = (self.u / self.n, None if self.missing else self.w / self.n, self.dt)
+        self.n, self.u, self.w, self.missing, self.dt = 0, 0.0, 0.0, False, 0.0
+        return out
+
+
+@dataclass
 class _Run:
     """A calibration in progress."""
 
     full: bool
     source: str
-    t0: float
+    t0: float | None  # None while the worker prepares the excitation
     duration: float
     grid_t: np.ndarray
-    setpoint: dict[str, np.ndarray]
+    setpoint: dict[str, np.ndarray] | None
     modes: dict[str, str]
+    worker: Worker
+    prepared: Future | None = None
     record: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     next_pct: int = PROGRESS_STEP
     thread: threading.Thread | None = None
@@ -209,6 +313,9 @@ class FieldTuning:
         self.est: dict[str, PretensionEstimator] = {}
         for name in wings:
             self.est[name] = PretensionEstimator(self.wing_model(name), self.adapt_cfg)
+        self.adapt_every = 1 if _jit.mode() == "compiled" else max(1, round(loop_hz / ADAPT_HZ_INTERPRETED))
+        self._acc: dict[str, _Batch] = {name: _Batch() for name in wings}
+        self._tops: dict[str, tuple[BoucWenParams, float]] = {}
         self._published: dict[str, float] = {}
         self._next_publish = 0.0
 
@@ -226,6 +333,16 @@ class FieldTuning:
             keep = est.estimate
             est.set_model(self.wing_model(name))
             est.set_estimate(keep.offset, keep.gain, keep.drift)
+
+    def _u_top(self, wing: str, params: BoucWenParams) -> float:
+        """The largest tendon travel (mm) the estimator's model reaches (its loading branch at its vertex);
+        inf when the model rises without bound."""
+        cached = self._tops.get(wing)
+        if cached is not None and cached[0] is params:
+            return cached[1]
+        top = model_top(params)
+        self._tops[wing] = (params, top)
+        return top
 
     def _apply_wing_model(self, wing: str) -> None:
         model = self.wing_model(wing)
@@ -351,24 +468,42 @@ class FieldTuning:
         for name in self.wings:
             if not self.has_sensor(name):
                 raise Refused(f"{name} wing has no warp sensor")
-        now = self.clock()
         dur = float(self.cal_seconds)
         n = int(math.ceil(dur * self.loop_hz)) + 1
         grid = np.arange(n) / self.loop_hz
-        sps, modes = {}, {}
+        ranges, modes = {}, {}
         for i, (name, w) in enumerate(self.wings.items()):
             wmax = self.max_warp(name)
             mid = 0.5 * (SAFE_LO + SAFE_HI) * wmax
             half = 0.5 * (SAFE_HI - SAFE_LO) * wmax * self.cal_amp
-            sps[name] = excitation(grid, mid - half, mid + half, start_deg=getattr(w, "setpoint", mid), seed=7 + i)
+            ranges[name] = (mid - half, mid + half, float(getattr(w, "setpoint", mid)), 7 + i)
             modes[name] = w.ctl.mode
             w.ctl.set_mode("ff")  # open loop: a clean record of the model's input and the wing's answer
-        self._run = _Run(full, source, now, dur, grid, sps, modes, {name: [] for name in self.wings})
+        worker = Worker()
+        run = _Run(full, source, None, dur, grid, None, modes, worker, record={name: [] for name in self.wings})
+        self._run = run
         self.state = CalState.EXCITING
         self.last_reason = ""
         what = "full model" if full else "offset, gain, width"
-        self.telemetry.status(SEV_NOTICE, f"WB cal start ({what}), {dur:.0f} s: keep clear of the wings")
-        log.info("calibration started by %s (%s)", source, what)
+        log.info("calibration started by %s (%s)%s", source, what,
+                 "" if worker.in_process else "; preparing it in a worker process")
+        run.prepared = worker.submit(excitation_task, grid, ranges)
+        self._begin_excitation(run)
+
+    def _begin_excitation(self, run: _Run) -> None:
+        """Fly the excitation once the worker has prepared it (at once when it runs in this process)."""
+        fut = run.prepared
+        if run.t0 is not None or fut is None or not fut.done():
+            return
+        try:
+            run.setpoint = fut.result()
+        except Exception as e:  # noqa: BLE001 - e.g. the worker process could not start
+            log.exception("calibration excitation could not be prepared")
+            self.abort(f"could not prepare the excitation: {e}"[:80])
+            return
+        run.t0 = self.clock()
+        what = "full model" if run.full else "offset, gain, width"
+        self.telemetry.status(SEV_NOTICE, f"WB cal start ({what}), {run.duration:.0f} s: keep clear of the wings")
 
     def restore(self) -> None:
         """Swap every wing's model with its previous one; raises ``Refused``."""
@@ -387,6 +522,7 @@ class FieldTuning:
         if run is None:
             return
         self._end_excitation(run)
+        run.worker.close()
         self._run = None
         self.state = CalState.ABORTED
         self.last_reason = reason
@@ -456,7 +592,7 @@ class FieldTuning:
     def setpoint(self, wing: str, now: float, setpoint: float) -> float:
         """The wing's setpoint this cycle: the excitation while calibrating, else as given."""
         run = self._run
-        if run is None or self.state != CalState.EXCITING:
+        if run is None or self.state != CalState.EXCITING or run.t0 is None or run.setpoint is None:
             return setpoint
         return float(np.interp(now - run.t0, run.grid_t, run.setpoint[wing]))
 
@@ -477,6 +613,8 @@ class FieldTuning:
         """Feed the cycle's command and raw measurement to the calibration or the estimator."""
         run = self._run
         if run is not None and self.state == CalState.EXCITING:
+            if run.t0 is None:
+                return  # the excitation is being prepared
             wmax = self.max_warp(wing)
             if measured is None:
                 self.abort(f"{wing} sensor unhealthy")
@@ -485,7 +623,15 @@ class FieldTuning:
             else:
                 run.record[wing].append((now - run.t0, u_cmd, measured))
             return
+        batch = self._acc[wing]
+        batch.add(u_cmd, measured, dt)
+        if batch.n < self.adapt_every:
+            return
+        u_cmd, measured, dt = batch.take()
         est = self.est[wing]
+        e = est.estimate
+        if e.gain * (u_cmd - e.offset) * (1.0 + EDGE_MARGIN) >= self._u_top(wing, est.params):
+            return  # beyond the top of the model's loop: the forward map has no answer there, nothing to learn
         if self.adapt_on:
             est.update(u_cmd, measured, dt, healthy=measured is not None and run is None)
         else:
@@ -509,7 +655,9 @@ class FieldTuning:
                 if self.state == CalState.EXCITING:
                     self.abort("armed")
                 run = self._run
-        if run is not None and self.state == CalState.EXCITING:
+        if run is not None and self.state == CalState.EXCITING and run.t0 is None:
+            self._begin_excitation(run)
+        elif run is not None and self.state == CalState.EXCITING:
             pct = int(100 * (now - run.t0) / run.duration)
             if pct >= run.next_pct and pct < 100:
                 self.telemetry.status(SEV_INFO, f"WB cal {run.next_pct} %")
@@ -539,17 +687,13 @@ class FieldTuning:
                 flown = cal.model(base)  # what the wing flies now: its model and the adaptation on top
                 old = fold_pretension(flown, est.offset, est.gain)
                 current = cal.transform.then(est.offset, est.gain) if cal.params is None else Transform()
-                if run.full:
-                    quick = refit(base, t, u, w, current=current, old=old)
-                    res = refit_full(base, t, u, w, lag_s=quick.lag_s, old=old, seed=1)
-                else:
-                    res = refit(base, t, u, w, current=current, old=old)
-                run.results[name] = res
+                run.results[name] = run.worker.submit(fit_task, base, t, u, w, current, old, run.full).result()
             except Exception as e:  # noqa: BLE001 - a failed fit keeps the old model
                 log.exception("calibration fit of the %s wing failed", name)
                 run.results[name] = f"fit failed: {e}"
 
     def _finish(self, run: _Run) -> None:
+        run.worker.close()
         self._run = None
         applied = []
         armed = getattr(self.link, "armed", False)
@@ -585,7 +729,7 @@ class FieldTuning:
         try:
             tl.named_float("WB_cal", float(self.state))
             run = self._run
-            if run is not None and self.state == CalState.EXCITING:
+            if run is not None and self.state == CalState.EXCITING and run.t0 is not None:
                 tl.named_float("WB_cal_pct", min(100.0, 100.0 * (now - run.t0) / run.duration))
             for name, est in self.est.items():
                 e = est.estimate

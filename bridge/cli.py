@@ -80,6 +80,9 @@ def log_level(verbose: int, quiet: int) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from warpbridge.bridge import jitcache
+
+    jitcache.configure()  # before any command imports numba: a writable compile cache
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)

@@ -1,9 +1,17 @@
 """``warpbridge run --config warpbridge.toml [--check] [--duration S]``: run the bridge on a real FC.
 
 ``--check`` validates the config and the model, opens the servo and sensor
-backends, reads each wing's sensor once, tries the link for a few seconds and
-prints what it found; exit status 0 if everything answered, 2 otherwise.
-Without it the bridge runs until interrupted (Ctrl-C or SIGTERM stop it cleanly).
+backends, reads each wing's sensor once, tries the link for a few seconds, asks
+the FC what each wing's source output does (``bridge.outputcheck``) and prints
+what it found; exit status 0 if everything answered and both sources are aileron
+outputs, 2 otherwise. Without it the bridge runs until interrupted (Ctrl-C or
+SIGTERM stop it cleanly).
+
+Start-up order: the config (standard library only), then neutral on the servo
+board (``bridge.startup``: the model file and the serial port), then the rest of
+the bridge (MAVLink). The model's kernels run interpreted here (``model._jit``):
+one sample per wing per cycle needs no compiler, and the process stays small;
+``WARPBRIDGE_JIT=1`` compiles them with numba instead.
 """
 
 from __future__ import annotations
@@ -14,16 +22,13 @@ import signal
 import threading
 from pathlib import Path
 
-from warpbridge.bridge.app import load_model, run_bridge, servo_limits
 from warpbridge.bridge.config import Config, backend_has_sensor, load_config
 from warpbridge.bridge.errors import UserError
-from warpbridge.bridge.link import FcLink
-from warpbridge.bridge.signing import policy_from_config
-from warpbridge.hw import DeviceError, open_sensor, open_servo
 
 log = logging.getLogger(__name__)
 
 CHECK_LINK_S = 5.0
+CHECK_OUTPUTS_S = 6.0  # the output-function check asks up to three times, 1.5 s apart
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
     """Open everything once and say what answered; 0 if all did, 2 otherwise."""
+    from warpbridge.bridge.link import FcLink
+    from warpbridge.bridge.signing import policy_from_config
+    from warpbridge.bridge.startup import load_model, servo_limits
+    from warpbridge.hw import DeviceError, open_sensor, open_servo
+
     ok = True
     model = load_model(config)
     print(f"config: OK; model: {'paper' if config.model_file is None else config.model_file}"
@@ -87,6 +97,7 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
             else:
                 chans = sorted({w.source_channel for w in config.wings.values()})
                 print("link: servo outputs " + ", ".join(f"{c}: {link.servo_pwm.get(c)}" for c in chans))
+            ok &= check_outputs(config, link)
         else:
             ok = False
             print("link: FAILED: no autopilot heartbeat")
@@ -101,12 +112,42 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
     return 0 if ok else 2
 
 
+def check_outputs(config: Config, link, timeout: float = CHECK_OUTPUTS_S) -> bool:
+    """Ask the FC what each wing's source output does and print it; False if one is not an aileron."""
+    from warpbridge.bridge.outputcheck import OutputFunctionCheck
+
+    probe = OutputFunctionCheck(link, {w.name: w.source_channel for w in config.wings.values()})
+    deadline = link.clock() + timeout
+    while not probe.done and link.clock() < deadline:
+        probe.take(link.poll(), link.clock())
+        if link.mav is not None:
+            link.mav.select(0.05)
+    good = True
+    for name in config.wings:
+        v = probe.verdicts.get(name)
+        if v is None:
+            print(f"outputs: {name} wing: no answer from the FC in {timeout:g} s")
+            continue
+        good &= v.kind != "not_aileron"
+        tag = {"aileron": "OK", "mixed": "NOTE", "unknown": "WARNING", "not_aileron": "FAILED"}[v.kind]
+        print(f"outputs: {v.text()}: {tag}")
+    return good
+
+
 def main(args: argparse.Namespace) -> int:
+    from warpbridge.model import _jit
+
     config = load_config(args.config)
+    _jit.interpret()  # before anything imports the model's kernels
     if args.check:
         return check(config)
     if args.duration is not None and not args.duration > 0:
         raise UserError("--duration must be positive")
+    from warpbridge.bridge.startup import command_neutral, servo_limits
+
+    opened = command_neutral(config, servo_limits(config))  # the wings to neutral before anything else loads
+    from warpbridge.bridge.app import run_bridge
+
     stop = threading.Event()
 
     def on_signal(signum, frame) -> None:  # noqa: ARG001
@@ -115,7 +156,7 @@ def main(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     try:
-        result = run_bridge(config, stop_event=stop, duration=args.duration)
+        result = run_bridge(config, stop_event=stop, duration=args.duration, opened_servo=opened)
     except KeyboardInterrupt:
         return 0
     log.info("stopped after %d cycles", result.cycles)

@@ -95,6 +95,17 @@ class WingController:
         """The last command (mm); the model's output before the first step."""
         return self._model.u if self._u_prev is None else self._u_prev
 
+    def start_state(self, w: float, z: float) -> None:
+        """Start the feed-forward's hysteresis state at warp ``w`` (deg) with state ``z`` (the model's units),
+        e.g. from a measured warp and the tendon position (``model.initial_state.algebraic_z0``), instead of
+        at rest. Only before the first step: later it would move the command without a bumpless transfer."""
+        if self._u_prev is not None:
+            raise RuntimeError("start_state only before the first step")
+        if not (math.isfinite(w) and math.isfinite(z)):
+            raise ValueError("start state must be finite")
+        self._model.reset(w0=float(w), z0=float(z))
+        self._r = float(w)
+
     def set_mode(self, mode: str) -> None:
         if mode not in MODES:
             raise ValueError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")

@@ -103,6 +103,11 @@ def split_connection(connection: str, default_baud: int = 921600) -> tuple[str, 
     return connection, default_baud
 
 
+def _enum_name(enum: str, value: int) -> str:
+    entry = mavlink.enums.get(enum, {}).get(value)
+    return f"{entry.name} ({value})" if entry is not None else str(value)
+
+
 def _finite(x: Any) -> bool:
     return isinstance(x, int | float) and math.isfinite(x)
 
@@ -203,6 +208,8 @@ class FcLink:
         self._warned: set[str] = set()
         self._refusal_text_at = -math.inf
         self._refusals_logged: set[tuple[str, str, int, int]] = set()
+        self._fc_silent_logged = False
+        self._stream_silent_logged: set[str] = set()
 
     # ------------------------------------------------------------------ connection
 
@@ -476,11 +483,17 @@ class FcLink:
     def _fc_heartbeat(self, msg: Any, now: float) -> None:
         self.counters.fc_heartbeats += 1
         was_alive = self.fc_alive
+        if self._fc_silent_logged:
+            log.info("FC heartbeat back after %.1f s", now - (self.fc_heartbeat_time or now))
+            self._fc_silent_logged = False
         self.fc_heartbeat_time = now
-        self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        if armed != self.armed or self.counters.fc_heartbeats == 1:
+            log.info("FC %s", "armed" if armed else "disarmed")
+        self.armed = armed
         autopilot = _AUTOPILOTS.get(msg.autopilot, "generic")
         if autopilot != self.autopilot:
-            log.info("FC autopilot: %s", autopilot)
+            log.info("FC autopilot: %s (MAV_AUTOPILOT %d, vehicle type %d)", autopilot, msg.autopilot, msg.type)
             self.autopilot = autopilot
             self._stream_asked.clear()
         if not was_alive:
@@ -548,7 +561,11 @@ class FcLink:
     def _command_ack(self, msg: Any) -> None:
         self.acks[msg.command] = msg.result
         if msg.result not in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
-            log.warning("FC refused command %d (result %d)", msg.command, msg.result)
+            key = f"ack:{msg.command}:{msg.result}"
+            if key not in self._warned:  # a refusal repeated every re-request is logged once
+                self._warned.add(key)
+                log.warning("FC refused command %s (result %s)", _enum_name("MAV_CMD", msg.command),
+                            _enum_name("MAV_RESULT", msg.result))
 
     # ------------------------------------------------------------------ periodic
 
@@ -567,6 +584,9 @@ class FcLink:
             )
         if self.fc_heartbeat_time is None:
             return
+        if not self._fc_silent_logged and now - self.fc_heartbeat_time >= FC_TIMEOUT_S:
+            self._fc_silent_logged = True
+            log.warning("no heartbeat from the FC for %.0f s", now - self.fc_heartbeat_time)
         if self.servo_rate_hz > 0:
             ids = [MSG_SERVO_OUTPUT_RAW]
             if self.autopilot == "px4":
@@ -581,9 +601,18 @@ class FcLink:
         if asked is not None and now - asked < self.rerequest_s:
             return  # asked recently: give the FC time to answer
         if seen is not None and now - seen < self.rerequest_s and asked is not None:
+            if name in self._stream_silent_logged:
+                self._stream_silent_logged.discard(name)
+                log.info("%s stream flowing again", name)
             return  # flowing
+        names = " and ".join(mavlink.mavlink_map[i].msgname if i in mavlink.mavlink_map else str(i) for i in ids)
         if asked is not None:
-            log.warning("%s stream silent for %.1f s; asking the FC again", name, self.rerequest_s)
+            if name not in self._stream_silent_logged:  # once per silence, not every re-request
+                self._stream_silent_logged.add(name)
+                log.warning("%s stream (%s) silent for %.1f s; asking the FC again every %.1f s",
+                            name, names, now - (seen if seen is not None else asked), self.rerequest_s)
+        else:
+            log.info("asked the FC for %s at %g Hz", names, rate_hz)
         self._stream_asked[name] = now
         for msg_id in ids:
             self.request_message_interval(msg_id, rate_hz)

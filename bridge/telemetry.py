@@ -18,7 +18,7 @@ and QGroundControl's MAVLink Inspector, logged by ArduPilot as NVAL):
 | ``L_cmd`` / ``R_cmd`` | mm | tendon command sent to the servo (feed-forward + PI) |
 | ``L_ff`` / ``R_ff`` | mm | feed-forward part of the command (inverse Bouc-Wen on the setpoint) |
 | ``L_pi`` / ``R_pi`` | mm | PI trim part of the command |
-| ``WB_mode`` | - | control mode: 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe hold |
+| ``WB_mode`` | - | mode that runs (ff where a sensor is missing): 0 open, 1 pi, 2 ff, 3 ff+pi, -1 failsafe |
 | ``WB_aspd`` | m/s | airspeed the bridge uses |
 | ``WB_lat`` | ms | age of the latest servo output message at use |
 | ``WB_cal`` / ``WB_cal_pct`` | - / % | self-calibration state and progress (``bridge.calibrate``) |
@@ -69,6 +69,14 @@ MODE_CODES = {"open": 0.0, "pi": 1.0, "ff": 2.0, "ff+pi": 3.0, "failsafe": -1.0}
 
 _STATUS_BURST = 5.0
 _STATUS_PER_S = 1.0
+SEV_ERROR, SEV_WARNING = 3, 4  # MAV_SEVERITY_ERROR, MAV_SEVERITY_WARNING
+
+
+def _level(severity: int) -> int:
+    """MAV_SEVERITY -> logging level."""
+    if severity <= SEV_ERROR:
+        return logging.ERROR
+    return logging.WARNING if severity == SEV_WARNING else logging.INFO
 
 
 class Telemetry:
@@ -91,6 +99,7 @@ class Telemetry:
         self._pending: dict[str, float] = {}
         self._active_keys: set[str] = set()
         self._key_sent: dict[str, float] = {}
+        self._key_logged: set[str] = set()
         self._tokens = _STATUS_BURST
         self._token_time = clock()
         self.dropped_status = 0
@@ -122,13 +131,20 @@ class Telemetry:
 
     # ------------------------------------------------------------------ status texts
 
-    def status(self, severity: int, text: str, key: str | None = None) -> bool:
+    def status(self, severity: int, text: str, key: str | None = None, *, log_it: bool = True) -> bool:
         """Send STATUSTEXT; with ``key`` only once until ``clear(key)`` (a failed send is retried
-        by the next call with that key). True if sent."""
+        by the next call with that key). True if sent.
+
+        Every status is also logged once (a keyed one when first raised, even before the link can carry
+        it) at the level of its severity: error and worse as ERROR, warning as WARNING, the rest INFO;
+        ``log_it=False`` when the caller logged it already in more words."""
         now = self.clock()
         if key is not None:
             if key in self._active_keys:
                 return False
+            if log_it and key not in self._key_logged:
+                log.log(_level(severity), "%s", text)
+            self._key_logged.add(key)
             last = self._key_sent.get(key)
             if last is not None and now - last < self.key_holdoff_s:
                 self._active_keys.add(key)
@@ -138,21 +154,23 @@ class Telemetry:
                 return False  # not sent (link not ready): the next call tries again
             self._active_keys.add(key)
             self._key_sent[key] = now
-            log.info("status [%s]: %s", key, text)
+            log.debug("status [%s] sent: %s", key, text)
             return True
+        if log_it:
+            log.log(_level(severity), "%s", text)
         self._tokens = min(_STATUS_BURST, self._tokens + (now - self._token_time) * _STATUS_PER_S)
         self._token_time = now
         if self._tokens < 1.0:
             self.dropped_status += 1
-            log.info("status dropped (rate limit): %s", text)
+            log.debug("status dropped (rate limit): %s", text)
             return False
         self._tokens -= 1.0
-        log.info("status: %s", text)
         return bool(self.link.send_statustext(severity, text))
 
     def clear(self, key: str) -> None:
-        """The condition behind ``key`` is over: the next ``status(..., key)`` is sent again."""
+        """The condition behind ``key`` is over: the next ``status(..., key)`` is sent (and logged) again."""
         self._active_keys.discard(key)
+        self._key_logged.discard(key)
 
     def active(self, key: str) -> bool:
         return key in self._active_keys

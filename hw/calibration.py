@@ -15,12 +15,11 @@ Validation errors are ``ValueError`` naming the offending key.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 PULSE_BOUNDS_US = (100.0, 3000.0)
 
@@ -149,35 +148,51 @@ class ServoCalibration:
         return (min(a, b), max(a, b))
 
 
+def _interp(x: float, xs: list[float], ys: list[float]) -> float:
+    """Piecewise-linear ys(x) over increasing xs, held at the ends (``numpy.interp`` without numpy)."""
+    x = float(x)
+    if math.isnan(x):
+        return math.nan
+    if x <= xs[0]:
+        return ys[0]
+    if x >= xs[-1]:
+        return ys[-1]
+    i = bisect.bisect_right(xs, x)
+    x0, x1, y0, y1 = xs[i - 1], xs[i], ys[i - 1], ys[i]
+    return y0 + (y1 - y0) * (x - x0) / (x1 - x0)
+
+
 class SensorCalibration:
     """Sensor counts <-> warp (deg) by a strictly monotone table, clamped at its ends."""
 
     def __init__(self, counts: Sequence[float], deg: Sequence[float]) -> None:
-        c = np.asarray(counts, dtype=float)
-        d = np.asarray(deg, dtype=float)
         where = "sensor calibration"
-        if c.ndim != 1 or d.ndim != 1:
-            raise ValueError(f"{where}: counts and deg must be flat lists")
+        try:
+            c = [float(x) for x in counts]
+            d = [float(x) for x in deg]
+        except TypeError:
+            raise ValueError(f"{where}: counts and deg must be flat lists") from None
         if len(c) != len(d):
             raise ValueError(f"{where}: counts has {len(c)} entries but deg has {len(d)}")
         if len(c) < 2:
             raise ValueError(f"{where}: need at least 2 points, got {len(c)}")
         for name, col in (("counts", c), ("deg", d)):
-            if not np.all(np.isfinite(col)):
+            if not all(math.isfinite(x) for x in col):
                 raise ValueError(f"{where}: {name} must be finite numbers")
-            steps = np.diff(col)
-            if not (np.all(steps > 0) or np.all(steps < 0)):
-                i = int(np.argmax(steps * np.sign(steps[0]) <= 0)) if steps[0] != 0 else 0
+            steps = [b - a for a, b in zip(col, col[1:], strict=False)]
+            if not (all(s > 0 for s in steps) or all(s < 0 for s in steps)):
+                sign = math.copysign(1.0, steps[0])
+                i = next((k for k, s in enumerate(steps) if s * sign <= 0), 0) if steps[0] != 0 else 0
                 raise ValueError(
                     f"{where}: {name} must be strictly increasing or strictly decreasing "
                     f"(breaks at entries {i} and {i + 1}: {col[i]:g}, {col[i + 1]:g})"
                 )
-        self.counts = tuple(float(x) for x in c)
-        self.deg = tuple(float(x) for x in d)
-        order = np.argsort(c)
-        self._c_by_c, self._d_by_c = c[order], d[order]
-        order = np.argsort(d)
-        self._d_by_d, self._c_by_d = d[order], c[order]
+        self.counts = tuple(c)
+        self.deg = tuple(d)
+        by_c = sorted(zip(c, d, strict=True))
+        self._c_by_c, self._d_by_c = [p[0] for p in by_c], [p[1] for p in by_c]
+        by_d = sorted(zip(d, c, strict=True))
+        self._d_by_d, self._c_by_d = [p[0] for p in by_d], [p[1] for p in by_d]
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SensorCalibration:
@@ -199,11 +214,11 @@ class SensorCalibration:
 
     def deg_for_counts(self, counts: float) -> float:
         """Warp (deg) for a reading; clamped to the table's range."""
-        return float(np.interp(counts, self._c_by_c, self._d_by_c))
+        return _interp(counts, self._c_by_c, self._d_by_c)
 
     def counts_for_deg(self, deg: float) -> float:
         """Reading expected at warp ``deg``; clamped to the table's range."""
-        return float(np.interp(deg, self._d_by_d, self._c_by_d))
+        return _interp(deg, self._d_by_d, self._c_by_d)
 
     @property
     def deg_range(self) -> tuple[float, float]:

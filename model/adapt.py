@@ -41,6 +41,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from warpbridge.model import _jit
 from warpbridge.model import kernels as K
 from warpbridge.model.boucwen import BoucWenParams, rest_warp
 
@@ -118,7 +119,7 @@ class PretensionEstimator:
                  offset: float = 0.0, gain: float = 1.0, drift: float = 0.0) -> None:
         self.config = config or AdaptConfig()
         self.enabled = True
-        self._p = params.to_array()
+        self._p = _jit.vector(params.to_array())
         self.params = params
         self._theta = np.array([offset, gain, drift], dtype=np.float64)
         self._project()
@@ -148,7 +149,7 @@ class PretensionEstimator:
 
     def set_model(self, params: BoucWenParams) -> None:
         """A new base model (e.g. after calibration): estimates back to neutral, window cleared."""
-        self._p = params.to_array()
+        self._p = _jit.vector(params.to_array())
         self.params = params
         self._theta[:] = (0.0, 1.0, 0.0)
         self._started = False
@@ -213,7 +214,7 @@ class PretensionEstimator:
             self._uf = u
         a = math.exp(-max(dt, 0.0) / self.config.input_tau_s) if self.config.input_tau_s > 0 else 0.0
         self._uf = u = a * self._uf + (1.0 - a) * u
-        o, g, d = self._theta
+        o, g, d = (float(v) for v in self._theta)
         x = g * (u - o)
         p = self._p
         wm, zm, _ = K.forward_step(p, self._wm, self._zm, x)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from warpbridge.model import _jit
 from warpbridge.model import kernels as K
 
 PAPER_B = (19.8351, -8.6135, 0.8325, -3.1266, 10.6984, -18.5)
@@ -126,7 +127,7 @@ def inverse(params: BoucWenParams, w, z0: float = 0.0, w0: float | None = None) 
     start = float(w[0]) if w0 is None else float(w0)
     if not np.isfinite(start):
         start = 0.0
-    K.inverse_run(params.to_array(), w, start, float(z0), u, z)
+    K.inverse_run(_jit.vector(params.to_array()), w, start, float(z0), u, z)
     return u, z
 
 
@@ -142,7 +143,7 @@ def forward(params: BoucWenParams, u, z0: float = 0.0, w0: float | None = None,
     z = np.empty_like(u)
     if u.size == 0:
         return w, z, 0
-    p = params.to_array()
+    p = _jit.vector(params.to_array())
     start = rest_warp(params, float(u[0]), z0) if w0 is None else float(w0)
     flagged = K.forward_run(p, u, start, float(z0), w, z)
     return w, z, int(flagged)
@@ -178,7 +179,7 @@ class Stepper:
 
     def set_params(self, params: BoucWenParams) -> None:
         self.params = params
-        self._p = params.to_array()
+        self._p = _jit.vector(params.to_array())
         self._zn = -1.0  # |z|^n carried between forward steps, as the array map does (-1: not known)
 
     def reset(self, w0: float = 0.0, z0: float = 0.0) -> None:

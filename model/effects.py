@@ -38,7 +38,8 @@ import math
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
-from numba import njit
+
+from warpbridge.model._jit import njit
 
 RHO_AIR = 1.225  # kg/m^3, sea-level standard
 

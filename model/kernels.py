@@ -31,7 +31,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+
+from warpbridge.model._jit import njit, prange
 
 # layout of the parameter vector
 P_A1, P_A2, P_A3, P_AZ, P_A, P_N = 0, 1, 2, 3, 4, 5

@@ -31,38 +31,11 @@ from warpbridge.model.adapt import fold_pretension
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.effects import lagged
 from warpbridge.model.identify import noise_floor
+from warpbridge.model.transform import Transform
 
 SWEEP_S = 4.0  # the opening sweep: up to the top of the range, down to the bottom
 WARMUP_S = 2.0  # not scored: the model's state is unknown until the sweep has wiped it
-
-
-@dataclass(frozen=True)
-class Transform:
-    """The rigged wing relative to the base model: u = offset + f(w) / gain, az scaled."""
-
-    offset: float = 0.0  # mm
-    gain: float = 1.0
-    az_scale: float = 1.0
-
-    def apply(self, base: BoucWenParams) -> BoucWenParams:
-        return fold_pretension(base, self.offset, self.gain, self.az_scale)
-
-    def then(self, offset: float, gain: float) -> Transform:
-        """This transform followed by a further pre-tension change u = offset + u_this / gain."""
-        return Transform(offset + self.offset / gain, self.gain * gain, self.az_scale)
-
-    def to_dict(self) -> dict[str, float]:
-        return {"offset_mm": self.offset, "gain": self.gain, "az_scale": self.az_scale}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> Transform:
-        try:
-            t = cls(float(d["offset_mm"]), float(d["gain"]), float(d.get("az_scale", 1.0)))
-        except (KeyError, TypeError, ValueError) as e:
-            raise ValueError(f"bad calibration transform: {e}") from None
-        if not (math.isfinite(t.offset) and t.gain > 0 and t.az_scale > 0):
-            raise ValueError("calibration transform: offset must be finite, gain and az_scale positive")
-        return t
+NO_CHANGE = Transform()  # the base model as it is
 
 
 @dataclass(frozen=True)
@@ -177,7 +150,7 @@ def _check(t: np.ndarray, u: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.
     return t, u, w
 
 
-def refit(base: BoucWenParams, t, u, w, *, current: Transform = Transform(), heldout_frac: float = 0.3,
+def refit(base: BoucWenParams, t, u, w, *, current: Transform = NO_CHANGE, heldout_frac: float = 0.3,
           fit_width: bool = True, bounds: FitBounds = FitBounds(), rule: AcceptRule = AcceptRule(),
           old: BoucWenParams | None = None) -> RefitResult:
     """Fit offset, gain (and hysteresis width) of the rigged wing relative to ``base``.

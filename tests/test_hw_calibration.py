@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -138,3 +139,20 @@ def test_sensor_dict_round_trip():
 def test_sensor_validation_errors(table, message):
     with pytest.raises(ValueError, match=message):
         SensorCalibration.from_dict(table)
+
+
+@given(st.lists(st.floats(-1e4, 1e4), min_size=2, max_size=12, unique=True),
+       st.floats(-2e4, 2e4), st.booleans())
+def test_sensor_table_interpolates_as_numpy_does(xs, x, falling):
+    """The table is read without numpy (the bridge commands neutral before numpy loads): same answers."""
+    counts = sorted(xs)
+    deg = [0.5 * i * i + i for i in range(len(counts))]  # strictly increasing
+    if falling:
+        deg = deg[::-1]
+    cal = SensorCalibration(counts, deg)
+    order = np.argsort(counts)
+    expect = float(np.interp(x, np.array(counts)[order], np.array(deg)[order]))
+    assert cal.deg_for_counts(x) == pytest.approx(expect, rel=1e-12, abs=1e-9)
+    d_sorted = np.argsort(deg)
+    back = float(np.interp(cal.deg_for_counts(x), np.array(deg)[d_sorted], np.array(counts)[d_sorted]))
+    assert cal.counts_for_deg(cal.deg_for_counts(x)) == pytest.approx(back, rel=1e-12, abs=1e-9)

@@ -1,0 +1,398 @@
+"""The bridge against a real autopilot's SITL (opt-in): ArduPlane's ``arduplane`` binary.
+
+Skipped unless ``WARPBRIDGE_ARDUPLANE`` names an ``arduplane`` SITL binary (built with
+``./waf configure --board sitl && ./waf plane``; see docs/autopilot-sitl.md). Run with::
+
+    WARPBRIDGE_ARDUPLANE=/path/to/ardupilot/build/sitl/bin/arduplane python -m pytest -m autopilot_sitl
+
+The autopilot starts in a temporary directory as ``arduplane -w --model plane --speedup 1 --serial0 tcp:0 -I<n>``
+on a free instance number ``n`` (its TCP ports 5760+10n for a ground station on SERIAL0,
+5762+10n for the bridge on SERIAL1), with ``Tools/autotest/models/plane.parm`` of its source tree
+when that is found (``WARPBRIDGE_ARDUPILOT_SRC``, or the tree the binary was built in) and
+always ``SCHED_LOOP_RATE 100`` (SERVO_OUTPUT_RAW at 50 Hz) and ``SYSID_MYGCS 255`` (RC override
+from our ground station). A pymavlink ground station on SERIAL0 heartbeats (ArduPilot routes a
+component's messages only to links it has heard from) and moves the aileron with
+RC_CHANNELS_OVERRIDE, in MANUAL: output 1 (``SERVO1_FUNCTION`` 4) follows stick 1. The bridge is
+the real command, ``warpbridge run``, on SERIAL1, with a Pololu Maestro emulated on a pty.
+
+The checks: the servo targets follow an aileron sweep in the right direction, with the
+hysteresis of the feed-forward visible; the start STATUSTEXT and the named values reach the
+ground station through the FC; a parameter set through the FC is answered (and a refused one
+explained); the output-function check names a wrong channel (``--check`` and at run time) and
+judges again when a ground station changes an output's function.
+
+``WARPBRIDGE_PX4`` (a PX4 SITL build) is not exercised here yet; docs/autopilot-sitl.md has the
+manual procedure for PX4's SIH airplane.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+from warpbridge.sitl.maestro_emu import MaestroEmulator
+
+ARDUPLANE = os.environ.get("WARPBRIDGE_ARDUPLANE", "")
+pytestmark = [
+    pytest.mark.autopilot_sitl,
+    pytest.mark.skipif(not (ARDUPLANE and os.access(ARDUPLANE, os.X_OK)),
+                       reason="opt-in: set WARPBRIDGE_ARDUPLANE to an ArduPlane SITL binary (docs/autopilot-sitl.md)"),
+]
+
+OWN_PARAMS = "SCHED_LOOP_RATE 100\nSYSID_MYGCS 255\n"  # 50 Hz SERVO_OUTPUT_RAW; RC override from sysid 255
+SERVO_CH = {"left": 0, "right": 1}
+PULSE_ZERO, MM_PER_US = 1200.0, 0.02  # tendon zero at 1200 us: a one-sided tendon, pulls on longer pulses
+
+
+def wait_for(cond: Callable[[], Any], timeout: float, step: float = 0.05) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = cond()
+        if got:
+            return got
+        time.sleep(step)
+    return cond()
+
+
+def _port_free(port: int, kind: int) -> bool:
+    with socket.socket(socket.AF_INET, kind) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_instance() -> int:
+    """An ArduPilot SITL instance number whose ports are all free (other runs may use 0..)."""
+    for n in range(20, 200):
+        tcp = [5760 + 10 * n, 5762 + 10 * n, 5763 + 10 * n]
+        if all(_port_free(p, socket.SOCK_STREAM) for p in tcp) and _port_free(5501 + 10 * n, socket.SOCK_DGRAM):
+            return n
+    raise RuntimeError("no free ArduPilot SITL instance number")
+
+
+def plane_defaults() -> Path | None:
+    """``Tools/autotest/models/plane.parm`` of the ArduPilot source tree, if it can be found."""
+    src = os.environ.get("WARPBRIDGE_ARDUPILOT_SRC")
+    roots = [Path(src)] if src else []
+    roots += list(Path(ARDUPLANE).resolve().parents)[2:4]  # <src>/build/sitl/bin/arduplane
+    for root in roots:
+        parm = root / "Tools" / "autotest" / "models" / "plane.parm"
+        if parm.is_file():
+            return parm
+    return None
+
+
+class ArduPlane:
+    """The SITL process in its own directory."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.instance = free_instance()
+        self.gcs_port, self.bridge_port = 5760 + 10 * self.instance, 5762 + 10 * self.instance
+        own = folder / "warpbridge-test.parm"
+        own.write_text(OWN_PARAMS)
+        defaults = [str(p) for p in (plane_defaults(), own) if p is not None]
+        self.log = open(folder / "arduplane.log", "wb")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen([ARDUPLANE, "-w", "--model", "plane", "--speedup", "1", "--serial0", "tcp:0", "-I",
+                                      str(self.instance), "--defaults", ",".join(defaults)],
+                                     cwd=folder, stdout=self.log, stderr=subprocess.STDOUT)
+
+    def wait_listening(self, timeout: float = 60.0) -> None:
+        def up() -> bool:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"arduplane exited: {(self.folder / 'arduplane.log').read_text()[-2000:]}")
+            return not _port_free(self.bridge_port, socket.SOCK_STREAM)
+        assert wait_for(up, timeout), "arduplane did not open its ports"
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.log.close()
+
+
+class Gcs:
+    """A ground station on SERIAL0: heartbeats, RC override, and what component 191 sends."""
+
+    def __init__(self, port: int) -> None:
+        self.mav = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255,
+                                              source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.lock = threading.Lock()
+        self.stick: int | None = None  # RC 1 override, us
+        self.floats: list[tuple[float, str, float]] = []
+        self.texts: list[tuple[float, str]] = []
+        self.params: dict[str, float] = {}
+        self.servo1: int | None = None  # the FC's output 1 (aileron), us
+        self._last_chunk = 0
+        self.fc_heartbeat = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_hb = next_rc = 0.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                self.mav.mav.command_long_send(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                               mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, 100000, 0, 0, 0, 0, 0)
+            if self.stick is not None and now >= next_rc:
+                next_rc = now + 0.1
+                self.mav.mav.rc_channels_override_send(1, 1, self.stick, 0, 0, 0, 0, 0, 0, 0)
+            try:
+                self.mav.select(0.05)
+                while (m := self.mav.recv_msg()) is not None:
+                    self._take(m)
+            except Exception:  # noqa: BLE001 - the autopilot went away at the end
+                if self._stop.is_set():
+                    return
+                time.sleep(0.05)
+
+    def _take(self, m: Any) -> None:
+        t = m.get_type()
+        if t == "HEARTBEAT" and m.get_srcComponent() == 1:
+            self.fc_heartbeat = True
+        if t == "SERVO_OUTPUT_RAW" and m.port == 0:
+            self.servo1 = m.servo1_raw
+        if m.get_srcComponent() != 191:
+            return
+        with self.lock:
+            if t == "NAMED_VALUE_FLOAT":
+                self.floats.append((time.monotonic(), m.name, m.value))
+            elif t == "STATUSTEXT":  # MAVLink 2 chunks of a long text share an id: joined here
+                chunk_id = getattr(m, "id", 0)
+                if chunk_id and self.texts and self._last_chunk == chunk_id:
+                    self.texts[-1] = (self.texts[-1][0], self.texts[-1][1] + m.text)
+                else:
+                    self.texts.append((time.monotonic(), m.text))
+                self._last_chunk = chunk_id
+            elif t == "PARAM_VALUE":
+                self.params[m.param_id] = m.param_value
+
+    def latest(self, name: str, since: float = 0.0) -> float | None:
+        with self.lock:
+            vals = [v for t, n, v in self.floats if n == name and t >= since]
+        return vals[-1] if vals else None
+
+    def text(self, fragment: str, since: float = 0.0) -> str | None:
+        with self.lock:
+            return next((x for t, x in self.texts if fragment in x and t >= since), None)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.mav.close()
+
+
+def bridge_config(folder: Path, port: int, *, left_source: int = 1, mode: str = "ff") -> Path:
+    wings = []
+    for name in ("left", "right"):
+        wings.append(f"""
+[wing.{name}]
+source_channel = {left_source if name == "left" else 1}
+reverse = {"true" if name == "right" else "false"}
+pwm_min = 1100
+pwm_trim = 1500
+pwm_max = 1900
+max_warp_deg = 8.0
+bias_deg = 2.0
+servo_channel = {SERVO_CH[name]}
+[wing.{name}.servo]
+pulse_min_us = 1000
+pulse_max_us = 2000
+pulse_zero_us = {PULSE_ZERO:g}
+mm_per_us = {MM_PER_US:g}
+[wing.{name}.control]
+mode = "{mode}"
+""")
+    cfg = folder / "wb.toml"
+    cfg.write_text(f"""
+[link]
+connection = "tcp:127.0.0.1:{port}"
+servo_rate_hz = 50
+[loop]
+rate_hz = 100
+[telemetry]
+rate_hz = 10
+[params]
+file = "params.json"
+[servo]
+backend = "maestro:{folder / 'maestro'}"
+[sensor]
+backend = "none"
+""" + "".join(wings))
+    return cfg
+
+
+class Bridge:
+    """``warpbridge run`` on the autopilot's SERIAL1 with a Maestro on a pty."""
+
+    def __init__(self, folder: Path, port: int, **config: Any) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        self.targets: list[tuple[float, int, float]] = []
+        self.emu = MaestroEmulator(on_target=lambda ch, q: self.targets.append((time.monotonic(), ch, q / 4)),
+                                   link=folder / "maestro")
+        self.emu.start()
+        self.stderr = folder / "bridge.stderr"
+        self._err = open(self.stderr, "wb")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config",
+                                      str(bridge_config(folder, port, **config))],
+                                     cwd=folder, stdout=subprocess.DEVNULL, stderr=self._err)
+
+    def pulse(self, channel: int, since: float) -> float | None:
+        got = [p for t, ch, p in list(self.targets) if ch == channel and t >= since]
+        return got[-1] if got else None
+
+    def log(self) -> str:
+        return self.stderr.read_text(errors="replace")
+
+    def stop(self) -> int:
+        self.proc.terminate()
+        try:
+            rc = self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            rc = self.proc.wait(5)
+        self._err.close()
+        self.emu.stop()
+        return rc
+
+
+@pytest.fixture(scope="module")
+def plane(tmp_path_factory) -> Iterator[tuple[ArduPlane, Gcs]]:
+    folder = tmp_path_factory.mktemp("arduplane")
+    ap = ArduPlane(folder)
+    gcs = None
+    try:
+        ap.wait_listening()
+        gcs = Gcs(ap.gcs_port)
+        assert wait_for(lambda: gcs.fc_heartbeat, 30.0), "no heartbeat from ArduPlane"
+        yield ap, gcs
+    finally:
+        if gcs is not None:
+            gcs.close()
+        ap.stop()
+
+
+@pytest.fixture
+def bridge_factory(plane, tmp_path):
+    made: list[Bridge] = []
+
+    def make(name: str = "bridge", **config: Any) -> Bridge:
+        b = Bridge(tmp_path / name, plane[0].bridge_port, **config)
+        made.append(b)
+        return b
+
+    yield make
+    for b in made:
+        if b.proc.poll() is None:
+            b.stop()
+
+
+def hold(gcs: Gcs, bridge: Bridge, stick: int, seconds: float = 2.5) -> tuple[float, float]:
+    """Hold the aileron stick; the left and right tendon pulses at the end."""
+    gcs.stick = stick
+    time.sleep(seconds)
+    since = time.monotonic() - 0.3
+    left, right = bridge.pulse(SERVO_CH["left"], since), bridge.pulse(SERVO_CH["right"], since)
+    assert left is not None and right is not None, bridge.log()[-3000:]
+    return left, right
+
+
+def test_servo_targets_follow_an_aileron_sweep_through_arduplane(plane, bridge_factory):
+    _, gcs = plane
+    gcs.stick = 1500
+    bridge = bridge_factory()
+    t0 = time.monotonic()
+    assert wait_for(lambda: gcs.latest("WB_mode", t0) == 2.0, 30.0), bridge.log()[-3000:]  # ff, following
+    centre_up = None
+    sweep = {}
+    for stick in (1100, 1500, 1900, 1500, 1100):
+        left, right = hold(gcs, bridge, stick)
+        if stick == 1500 and centre_up is None:
+            centre_up = (left, right)
+        sweep.setdefault(stick, []).append((left, right))
+    centre_down = sweep[1500][-1]
+    # right stick (roll right): the left wing gains lift -> its tendon pulls (longer pulse); the right relaxes
+    assert sweep[1900][0][0] > centre_up[0] > sweep[1100][0][0] + 50
+    assert sweep[1900][0][1] < centre_up[1] < sweep[1100][0][1] - 50
+    # the feed-forward's hysteresis: the same warp from above needs the tendon released further
+    assert centre_up[0] - centre_down[0] > 10, (centre_up, centre_down)
+    # the setpoints are the mixer's (docs: a = (pwm - 1500) / 400 below trim; w = bias (1 + a) for the
+    # wing that relaxes, bias + a (max - bias) for the one that gains lift) of what the FC outputs now
+    a = (gcs.servo1 - 1500) / 400.0
+    assert a < -0.5, gcs.servo1  # stick left
+    assert gcs.latest("L_sp") == pytest.approx(2.0 * (1 + a), abs=0.05)
+    assert gcs.latest("R_sp") == pytest.approx(2.0 + (-a) * 6.0, abs=0.05)
+    assert bridge.stop() == 0
+
+
+def test_start_message_named_values_and_parameters_through_the_fc(plane, bridge_factory):
+    _, gcs = plane
+    gcs.stick = 1700
+    t0 = time.monotonic()
+    bridge = bridge_factory()
+    assert wait_for(lambda: gcs.text("WB started: ff", t0), 30.0), bridge.log()[-3000:]
+    assert wait_for(lambda: gcs.latest("L_sp", t0) is not None, 10.0)
+    names = {n for t, n, _ in list(gcs.floats) if t >= t0}
+    assert {"L_sp", "R_sp", "L_cmd", "R_cmd", "L_ff", "WB_mode", "WB_lat"} <= names, names
+    assert gcs.latest("L_sp") > gcs.latest("R_sp")  # stick right of centre
+    gcs.mav.mav.param_set_send(1, 191, b"WB_KP", 2.5, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert wait_for(lambda: gcs.params.get("WB_KP") == pytest.approx(2.5), 10.0), gcs.params
+    t1 = time.monotonic()
+    gcs.mav.mav.param_set_send(1, 191, b"WB_KP", 500.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert wait_for(lambda: gcs.text("param WB_KP: 500 above max 50", t1), 10.0)
+    assert gcs.params["WB_KP"] == pytest.approx(2.5)  # the echo carries the value kept
+    gcs.mav.mav.param_set_send(1, 191, b"WB_MODE", 3.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert wait_for(lambda: gcs.text("WB_MODE: not applied: ff+pi needs a warp sensor", t1), 10.0)
+    assert "FC autopilot: ardupilot" in bridge.log() and "asked the FC for SERVO_OUTPUT_RAW at 50 Hz" in bridge.log()
+    assert bridge.stop() == 0
+
+
+def test_output_function_check_names_a_wrong_channel(plane, bridge_factory, tmp_path):
+    ap, gcs = plane
+    cfg = bridge_config(tmp_path, ap.bridge_port, left_source=2)  # output 2 is the elevator in ArduPlane
+    r = subprocess.run([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config", str(cfg), "--check"],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "left wing: FC output 2 is NOT an aileron (SERVO2_FUNCTION 19 (elevator))" in r.stdout, r.stdout
+    assert "right wing: FC output 1 is an aileron (SERVO1_FUNCTION 4 (aileron)): OK" in r.stdout
+    t0 = time.monotonic()
+    bridge = bridge_factory("wrong", left_source=2)
+    assert wait_for(lambda: gcs.text("WB L out 2 is elevator, not aileron", t0), 30.0), \
+        bridge.log()[-3000:]
+    assert "is NOT an aileron" in bridge.log()
+    assert bridge.stop() == 0
+
+
+def test_a_changed_output_function_is_judged_again(plane, bridge_factory):
+    _, gcs = plane
+    t0 = time.monotonic()
+    bridge = bridge_factory("changed")
+    assert wait_for(lambda: "left wing: FC output 1 is an aileron" in bridge.log(), 30.0), bridge.log()[-3000:]
+    try:  # a ground station moves the aileron off output 1: ArduPilot announces the new value on every link
+        gcs.mav.mav.param_set_send(1, 1, b"SERVO1_FUNCTION", 0, mavlink.MAV_PARAM_TYPE_INT16)
+        assert wait_for(lambda: gcs.text("WB L out 1 is disabled, not aileron", t0), 15.0), bridge.log()[-3000:]
+    finally:
+        gcs.mav.mav.param_set_send(1, 1, b"SERVO1_FUNCTION", 4, mavlink.MAV_PARAM_TYPE_INT16)
+    assert wait_for(lambda: bridge.log().count("left wing: FC output 1 is an aileron") == 2, 15.0), \
+        bridge.log()[-3000:]
+    assert bridge.stop() == 0
