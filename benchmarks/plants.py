@@ -400,28 +400,29 @@ class Sheath(Family):
                                      k_wing=self.params.k_wing * stiff)
         x = np.ascontiguousarray(x, dtype=np.float64)
         c0, c1 = aero
-        w = sh.SheathPlant(p, u0=float(x[0])).simulate(x, 0.0)
+        w = sh.SheathPlant(p, u0=0.0).simulate(x, 0.0)  # the rig rests at travel 0, as in draw_sheath
         if c0 == 0.0 and c1 == 0.0 or not np.any(q):
             return w
         for _ in range(2):  # the load follows the warp it bends back: two fixed-point passes
             load = q * (c0 + c1 * w)
-            w = sh.SheathPlant(p, u0=float(x[0])).simulate(x, load)
+            w = sh.SheathPlant(p, u0=0.0).simulate(x, load)
         return w
 
 
 def draw_sheath(rng: np.random.Generator) -> Sheath:
-    """A rig from ``sitl.sheath.random_sheath`` (bend, mu, nodes, stiffnesses, pre-tension over a wide range),
-    kept when 0..12 deg of warp needs a sensible tendon travel."""
+    """A rig from ``sitl.sheath.random_sheath`` (bend, mu, nodes, stiffnesses, pre-tension over a wide range);
+    the tendon travel runs from where pulling reaches 2 deg to where it reaches 12 deg (the tendon never goes
+    slack), kept when that is a sensible travel."""
     sh = _sheath_module()
     for _ in range(100):
         params = sh.random_sheath(rng)
         try:
-            u_lo, u_hi = sh.SheathPlant(params).travel_range(12.0)
+            u_lo = sh.SheathPlant(params).travel_range(2.0)[1]
+            u_hi = sh.SheathPlant(params).travel_range(12.0)[1]
         except RuntimeError:
             continue
         if 1.0 < u_hi - u_lo < 40.0:
-            span = u_hi - u_lo
-            return Sheath(params, u_lo + 0.1 * span, u_hi, Bench.draw(rng, span))
+            return Sheath(params, u_lo, u_hi, Bench.draw(rng, u_hi - u_lo))
     raise RuntimeError("could not draw a usable sheath rig")
 
 

@@ -17,9 +17,9 @@ small step of travel and every reversal costs a third of the samples of a
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from warpbridge.model import kernels as K
+from warpbridge.model._jit import njit
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")

@@ -35,7 +35,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+
+from warpbridge.model._jit import njit
 
 FORMAT = "warpbridge-model-error/1"
 FEATURE_SETS = ("level", "branch", "transition", "rate", "memory")  # nested: each adds columns to the previous
