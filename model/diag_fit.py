@@ -210,8 +210,8 @@ class Fit:
     coords: dict[str, float] = field(default_factory=dict)  # search coordinate in [0, 1] per nonlinear field
     boxes: list[Box] = field(default_factory=list, repr=False)
 
-    def bound_hits(self, tol: float = 0.01) -> list[dict]:
-        """Nonlinear parameters fitted at (within ``tol`` of) an edge of their search box."""
+    def bound_hits(self, tol: float = 0.03) -> list[dict]:
+        """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width)."""
         out = []
         for b in self.boxes:
             s = self.coords.get(b.field)
@@ -243,7 +243,8 @@ class Problem:
     """A log and a nominal model to be augmented; see the module docstring."""
 
     def __init__(self, t, u, w, airspeed, params: BoucWenParams, effects: Effects, z0: float = 0.0,
-                 split: Split | None = None, error_model: ErrorModel | None = None) -> None:
+                 split: Split | None = None, error_model: ErrorModel | None = None,
+                 travel_step: float = TRAVEL_STEP) -> None:
         self.t = np.ascontiguousarray(t, dtype=np.float64)
         self.u = np.ascontiguousarray(u, dtype=np.float64)
         self.w = np.ascontiguousarray(w, dtype=np.float64)
@@ -254,7 +255,7 @@ class Problem:
         self.z0 = float(z0)
         self.error_model = error_model if error_model is not None and error_model.theta.size else None
         lo_u, hi_u = np.percentile(self.u, [0.5, 99.5])
-        self.travel_step = TRAVEL_STEP * max(float(hi_u - lo_u), 1e-9)
+        self.travel_step = travel_step * max(float(hi_u - lo_u), 1e-9)  # 0: every sample
         self.split = split or make_split(self.t, self.u)
         self.tau = self.t - self.t[0]
         self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
@@ -300,7 +301,7 @@ class Problem:
         p = self._core_params(eff)
         self.evaluations += 1
         w = np.empty_like(x)
-        idx = travel_grid(x, self.travel_step)
+        idx = travel_grid(x, self.travel_step) if self.travel_step > 0 else np.arange(x.size)
         xk = np.ascontiguousarray(x[idx])
         wk = np.empty_like(xk)
         zk = np.empty_like(xk)

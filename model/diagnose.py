@@ -551,7 +551,7 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
             p = g.p_value
             j.ambiguous_with_best = p > opt.ambiguity_alpha or g.gain < floor_gain
             if j.ambiguous_with_best and g.gain < floor_gain and floor_gain > 0:
-                p = max(p, 0.5 * (1.0 - g.gain / floor_gain))
+                p = min(1.0, max(p, 0.5 * (1.0 - g.gain / floor_gain)))
             j.confidence = support[j.name] * min(1.0, 2.0 * p)
             best_conf = min(best_conf, support[best.name] * min(1.0, 2.0 * (1.0 - p)))
         best.confidence = best_conf

@@ -86,12 +86,21 @@ def test_problem_predicts_exactly_what_the_plant_simulates():
                   pretension_gain=0.97, sensor_tau_s=0.03, drift_deg_s=0.002, aero_gain_per_kpa=0.3,
                   aero_deg_per_kpa=0.8)
     t, u, w, v = make_log(Effects(), seed=4, duration=5.0)
-    prob = Problem(t, u, w, v, P, Effects())
+    prob = Problem(t, u, w, v, P, Effects(), travel_step=0.0)
     plant = Plant(P, eff)
     # each candidate starts from its own initial state (its input effects move the algebraic z0)
     z0 = prob.z0_for(plant.core_params(), apply_input_effects(eff, t, u))
     _, expected = plant.simulate(t, u, v, z0=z0)
     np.testing.assert_allclose(prob.predict(eff), expected, rtol=0, atol=1e-9)
+
+
+def test_the_compressed_path_predicts_what_every_sample_does_to_far_below_the_noise():
+    eff = Effects(delay_s=0.02, backlash_mm=0.05, friction_scale=1.2, pretension_offset_mm=0.1, pretension_gain=0.97)
+    t, u, w, v = make_log(Effects(), seed=9, duration=10.0)
+    exact = Problem(t, u, w, v, P, Effects(), travel_step=0.0).predict(eff)
+    fast = Problem(t, u, w, v, P, Effects()).predict(eff)
+    assert np.max(np.abs(fast - exact)) < 0.1 * NOISE
+    assert np.sqrt(np.mean((fast - exact) ** 2)) < 0.01 * NOISE
 
 
 def test_split_alternates_blocks_and_scores_the_end():
@@ -319,15 +328,16 @@ def test_a_log_that_starts_loaded_gives_no_false_alarm():
 
 
 def test_a_parameter_at_its_bound_is_reported_and_lowers_the_confidence():
-    # a friction change far beyond the search box (0.2 .. 5)
-    t, u, w, v = make_log(Effects(friction_scale=9.0), seed=24)
+    # a sensor lag far beyond its search box (up to 0.5 s)
+    t, u, w, v = make_log(Effects(sensor_tau_s=0.9), seed=24)
     d = diagnose(t, u, w, v, nominal_model())
-    assert "friction" in d.verdict
-    hits = [h for h in d.report["bound_hits"] if h["parameter"] == "friction_scale"]
-    assert hits and hits[0]["bound"] == "upper" and hits[0]["limit"] == pytest.approx(5.0)
+    assert "sensor_lag" in d.verdict
+    hits = [h for h in d.report["bound_hits"] if h["parameter"] == "sensor_tau_s"]
+    assert hits and hits[0]["bound"] == "upper" and hits[0]["limit"] == pytest.approx(0.5)
     assert "larger than the model allows" in hits[0]["meaning"]
-    row = next(c for c in d.report["candidates"] if c["effect"] == "friction")
+    row = next(c for c in d.report["candidates"] if c["effect"] == "sensor_lag")
     assert row["at_bound"] and row["confidence"] <= 0.5
+    assert any("sensor_tau_s sits at the upper bound" in line for line in d.report["summary"])
 
 
 def test_one_effect_alone_is_not_padded_with_a_second():
