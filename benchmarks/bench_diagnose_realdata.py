@@ -93,9 +93,14 @@ def main() -> int:
         if code != 0:
             print(text)
             return 1
-        fit = json.loads(model.read_text())["fit"]
+        md = json.loads(model.read_text())
+        fit = md["fit"]
         print(f"identified bend {args.base}: training RMS {fit['train_rms_deg']:.3f}, held-out RMS "
               f"{fit['heldout_rms_deg']:.3f} deg, noise {fit['noise_deg']:.3f} deg")
+        em = md.get("model_error")
+        if em:
+            print(f"model-error model on the bench log: {em['bench_rms_before_deg']:.3f} -> "
+                  f"{em['bench_rms_after_deg']:.3f} deg RMS cross-validated ({', '.join(em['sets']) or 'none'})")
         print(f"\n{'log':<10} {'verdict':<34} {'held-out RMS':>22} {'gap':>6}   other logs (nominal -> augmented RMS)")
         for name, log in logs.items():
             if name == args.base:
@@ -126,6 +131,12 @@ def main() -> int:
                 print(f"{'':<10}   {n}: {vals}")
             for a in rep["ambiguities"]:
                 print(f"{'':<10}   ambiguous: {' / '.join(a['equally_good'])}")
+            for h in rep.get("bound_hits", []):
+                print(f"{'':<10}   AT A BOUND: {h['parameter']} = {h['value']:.4g} at its {h['bound']} bound "
+                      f"{h['limit']:.4g}")
+            conf = {c["effect"]: c["confidence"] for c in rep["candidates"] if c.get("in_verdict")}
+            if conf:
+                print(f"{'':<10}   confidence: " + ", ".join(f"{k} {v:.2f}" for k, v in conf.items()))
     return 0
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from warpbridge.model.boucwen import BoucWenParams, Stepper
-from warpbridge.model.effects import Effects, dynamic_pressure_kpa
+from warpbridge.model.effects import Effects, dynamic_pressure_kpa, friction_core
 from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
@@ -30,11 +30,12 @@ INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")
 
 def folded_params(params: BoucWenParams, effects: Effects) -> BoucWenParams:
     """Bouc-Wen parameters with friction and pre-tension folded in exactly: the rigged wing's model
-    u = offset + f(w) / gain with az scaled by the friction factor."""
+    u = offset + f(w) / gain with the loop scaled about its middle by the friction factor."""
     g, off, s = effects.pretension_gain, effects.pretension_offset_mm, effects.friction_scale
     if g == 1.0 and off == 0.0 and s == 1.0:
         return params
-    return replace(params, a1=params.a1 / g, a2=params.a2 / g, a3=params.a3 / g + off, az=params.az * s / g)
+    p = friction_core(params, s)
+    return replace(p, a1=p.a1 / g, a2=p.a2 / g, a3=p.a3 / g + off, az=p.az / g)
 
 
 def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float:

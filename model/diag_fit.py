@@ -10,12 +10,20 @@ friction scale).
 The output side is affine in the linear parameters (aero load gain and offset,
 drift), even through the sensor lag, which is a linear filter::
 
-    w_meas = lag(w_core) - g lag(q w_core) - c lag(q) + d (t - t0)
+    w_meas = lag(w_core) - g lag(q w_core) - c lag(q) + d D(t - t0; tau)
 
 so those are solved by least squares inside every evaluation (variable
 projection) and the searches run only over the nonlinear parameters: a grid
 for a good start, then bounded Brent (one parameter) or Nelder-Mead (more),
 in a box normalised to [0, 1] per parameter.
+
+When the nominal model carries a model-error model (``model.model_error``,
+learned from the bench residual), its correction is added to the core's
+output for every candidate, so effects are fitted to what changed since the
+bench. The initial hysteretic state follows each candidate's input: the
+nominal's estimate, moved by the change of the algebraic state that the
+candidate's input effects make at the first samples (a pre-tension offset
+moves z0 with it), clamped to the reachable band.
 """
 
 from __future__ import annotations
@@ -29,14 +37,25 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
-from warpbridge.model.diag_kernels import forward_run_capped
-from warpbridge.model.effects import EFFECT_FIELDS, Effects, apply_input_effects, dynamic_pressure_kpa, lagged
+from warpbridge.model.diag_kernels import fill_along_travel, forward_run_capped, travel_grid
+from warpbridge.model.effects import (
+    EFFECT_FIELDS,
+    Effects,
+    apply_input_effects,
+    drift_shape,
+    dynamic_pressure_kpa,
+    friction_core,
+    lagged,
+)
 from warpbridge.model.identify import reversal_indices, warmup_end
+from warpbridge.model.initial_state import algebraic_z0, reachable_band
+from warpbridge.model.model_error import ErrorModel
 
 log = logging.getLogger(__name__)
 
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
+TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
 INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale")
 
 
@@ -143,6 +162,8 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
         return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
     if name == "friction":
         return [Box("friction_scale", 0.2, 5.0, log=True)]
+    if name == "drift":  # from a zero still settling at the log's end (not a static offset) to a steady ramp
+        return [Box("drift_tau_s", 0.25 * dur, 20.0 * dur, log=True, neutral_at_hi=True)]
     if name == "pretension":
         return [Box("pretension_offset_mm", -0.5 * span, 0.5 * span), Box("pretension_gain", 0.5, 2.0, log=True)]
     return []
@@ -186,6 +207,25 @@ class Fit:
     score_mse: float
     n_params: int
     evaluations: int = 0
+    coords: dict[str, float] = field(default_factory=dict)  # search coordinate in [0, 1] per nonlinear field
+    boxes: list[Box] = field(default_factory=list, repr=False)
+
+    def bound_hits(self, tol: float = 0.03) -> list[dict]:
+        """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width)."""
+        out = []
+        for b in self.boxes:
+            s = self.coords.get(b.field)
+            if s is None:
+                continue
+            if b.neutral_at_hi and s >= 1.0:
+                continue  # "no limit" is a value, not a bound
+            for edge, hit, limit in (("lower", s <= tol, b.lo), ("upper", s >= 1.0 - tol, b.hi)):
+                if hit:
+                    effect = next(n for n, (fs, _, _) in EFFECT_FIELDS.items() if b.field in fs)
+                    out.append({"effect": effect, "parameter": b.field, "bound": edge, "limit": limit,
+                                "value": _jsonable(getattr(self.effects, b.field))})
+        return out
+
 
     def values(self, names=None) -> dict[str, dict[str, float]]:
         """{effect: {parameter: value}} of the named (default: fitted) effects."""
@@ -203,7 +243,8 @@ class Problem:
     """A log and a nominal model to be augmented; see the module docstring."""
 
     def __init__(self, t, u, w, airspeed, params: BoucWenParams, effects: Effects, z0: float = 0.0,
-                 split: Split | None = None) -> None:
+                 split: Split | None = None, error_model: ErrorModel | None = None,
+                 travel_step: float = TRAVEL_STEP) -> None:
         self.t = np.ascontiguousarray(t, dtype=np.float64)
         self.u = np.ascontiguousarray(u, dtype=np.float64)
         self.w = np.ascontiguousarray(w, dtype=np.float64)
@@ -212,6 +253,9 @@ class Problem:
         self.params = params
         self.base = effects
         self.z0 = float(z0)
+        self.error_model = error_model if error_model is not None and error_model.theta.size else None
+        lo_u, hi_u = np.percentile(self.u, [0.5, 99.5])
+        self.travel_step = travel_step * max(float(hi_u - lo_u), 1e-9)  # 0: every sample
         self.split = split or make_split(self.t, self.u)
         self.tau = self.t - self.t[0]
         self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
@@ -219,16 +263,31 @@ class Problem:
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
         # the nominal model is run uncapped, exactly as ``predict`` would, whatever it saturates
         x = apply_input_effects(effects, self.t, self.u)
-        self._core[self._key(effects)] = forward(self._core_params(effects), x, z0=self.z0)[0]
+        p = self._core_params(effects)
+        self._z0_alg = algebraic_z0(p, x, self.w) * p.az  # in mm of tendon: comparable across friction scales
+        # the candidates run on the compressed path, and so does the nominal they are compared with, unless it
+        # leaves the model's monotone range: then it is run uncapped, exactly as ``predict`` would
+        if not np.all(np.isfinite(self.core(effects))):
+            self._core[self._key(effects)] = self._corrected(x, forward(p, x, z0=self.z0)[0])
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
         return tuple(getattr(eff, f) for f in INPUT_FIELDS)
 
     def _core_params(self, eff: Effects) -> BoucWenParams:
-        if eff.friction_scale == 1.0:
-            return self.params
-        return replace(self.params, az=self.params.az * eff.friction_scale)
+        return friction_core(self.params, eff.friction_scale)
+
+    def _corrected(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        if self.error_model is None or not np.all(np.isfinite(w)):
+            return w
+        return w + self.error_model.correction(self.t, x, w)
+
+    def z0_for(self, p: BoucWenParams, x: np.ndarray) -> float:
+        """Initial state for a candidate's core: the nominal's, moved as the algebraic state moves."""
+        shift = algebraic_z0(p, x, self.w) * p.az - self._z0_alg
+        z = (self.z0 * self.params.az + shift) / p.az
+        lo, hi = reachable_band(p, float(self.w[0]))
+        return float(np.clip(z, lo, hi))
 
     # -- prediction --
     def core(self, eff: Effects) -> np.ndarray:
@@ -242,11 +301,18 @@ class Problem:
         p = self._core_params(eff)
         self.evaluations += 1
         w = np.empty_like(x)
-        z = np.empty_like(x)
-        cap = max(10, int(MAX_SATURATED * x.size))
-        if not _reachable(p, x) or forward_run_capped(p.to_array(), x, rest_warp(p, float(x[0]), self.z0), self.z0,
-                                                      w, z, cap) < 0:
+        idx = travel_grid(x, self.travel_step) if self.travel_step > 0 else np.arange(x.size)
+        xk = np.ascontiguousarray(x[idx])
+        wk = np.empty_like(xk)
+        zk = np.empty_like(xk)
+        cap = max(10, int(MAX_SATURATED * xk.size))
+        z0 = self.z0_for(p, x)
+        if not _reachable(p, x) or forward_run_capped(p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0,
+                                                      wk, zk, cap) < 0:
             w[:] = np.nan  # beyond the model's monotone range: not a candidate
+        else:
+            fill_along_travel(x, idx, wk, w)
+        w = self._corrected(x, w)
         self._core[key] = w
         if len(self._core) > 8:
             self._core.popitem(last=False)  # (the nominal may go too: it is only needed once)
@@ -278,9 +344,9 @@ class Problem:
             else:
                 base = base - c * lq
         if "drift_deg_s" in free:
-            cols.append(self.tau)
+            cols.append(drift_shape(self.tau, eff.drift_tau_s))
         elif d != 0.0:
-            base = base + d * self.tau
+            base = base + d * drift_shape(self.tau, eff.drift_tau_s)
         basis = np.column_stack(cols) if cols else np.zeros((self.t.size, 0))
         return base, basis
 
@@ -348,7 +414,7 @@ class Problem:
                 s0 = self._nelder_mead(cost, s0, max_evals)
         eff, wp = self.solve_linear(build(s0), lin)
         return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), n_params,
-                   self.evaluations - evals0)
+                   self.evaluations - evals0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes)
 
     def _grid_start(self, boxes: list[Box], s0: np.ndarray, cost, grid_name: str, movers) -> np.ndarray:
         idx = [i for i, b in enumerate(boxes) if b.field in EFFECT_FIELDS[grid_name][0]] if grid_name in movers else []
@@ -374,7 +440,7 @@ class Problem:
         lo, hi = max(0.0, x0 - 1.0 / 12), min(1.0, x0 + 1.0 / 12)
         c0 = cost(s0)
         r = minimize_scalar(lambda x: cost(np.array([x])), bounds=(lo, hi), method="bounded",
-                            options={"xatol": 1e-4, "maxiter": 40})
+                            options={"xatol": 5e-4, "maxiter": 30})
         return np.array([r.x]) if r.fun <= c0 else s0
 
     @staticmethod

@@ -125,6 +125,14 @@ class PairedGain:
                 "p_value": _finite(self.p_value), "chunks": self.chunks}
 
 
+def _lag_products(x: np.ndarray, max_lag: int) -> np.ndarray:
+    """sum_i x_i x_(i+k) for k = 0..max_lag (FFT)."""
+    n = x.size
+    m = 1 << (n + max_lag).bit_length()
+    f = np.fft.rfft(x, m)
+    return np.fft.irfft(f * np.conj(f), m)[: max_lag + 1]
+
+
 def chunk_ids(mask: np.ndarray, t: np.ndarray, chunk_s: float) -> np.ndarray:
     """Chunk label per sample (-1 outside ``mask``): runs of ``mask`` cut every ``chunk_s`` seconds."""
     ids = np.full(mask.size, -1, dtype=np.int64)
@@ -178,9 +186,10 @@ def paired_gain(e0: np.ndarray, e1: np.ndarray, ids: np.ndarray) -> PairedGain:
         lag_max = k
     c0 = float(np.mean(eps * eps))
     var = c0 * sdd
-    for k in range(1, lag_max + 1):
+    if lag_max > 0:
+        k = np.arange(1, lag_max + 1)
         wk = 1.0 - k / (lag_max + 1.0)
-        var += 2.0 * wk * c0 * rho[k] * float(np.dot(d[:-k], d[k:]))
+        var += 2.0 * c0 * float(np.sum(wk * rho[1:lag_max + 1] * _lag_products(d, lag_max)[1:]))
     se_beta = math.sqrt(max(var, 0.0)) / sdd
     z = (beta - 0.5) / se_beta if se_beta > 0 else (math.inf if beta > 0.5 else -math.inf)
     p = float(stats.norm.sf(z)) if math.isfinite(z) else (0.0 if z > 0 else 1.0)

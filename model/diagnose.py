@@ -1,31 +1,40 @@
 """Diagnosis of the gap between a model and a log: where it is, which effect explains it, how far.
 
-1. **Where.** The model (with the effects it already carries) is free-run on
-   the logged tendon input; the residual is split by hysteresis phase, warp
-   level, frequency band, time and airspeed (``model.diag_where``) against the
-   floor it should reach: the noise estimated from the log's second differences
-   plus the model's own known error from its fit quality (held-out RMS beyond
-   the noise it was identified with), so a model that never fitted perfectly is
-   not blamed on a new effect.
+0. **Start.** The hysteretic state at the log's first sample is estimated
+   from its opening stretch (``model.initial_state``, with the model's effects
+   and error correction), not assumed at rest. When MODEL.json carries a
+   model-error model (``model.model_error``: what the nominal model got wrong
+   on the bench, as a function of warp level, direction, travel since the
+   last reversal and rate), its correction is part of the nominal prediction,
+   and what it still gets wrong on the bench is the model's known error.
+1. **Where.** The corrected model (with the effects it already carries) is
+   free-run on the logged tendon input; the residual is split by hysteresis
+   phase, warp level, frequency band, time and airspeed
+   (``model.diag_where``) against the floor it should reach: the noise
+   estimated from the log's second differences plus the model's known error,
+   so a model that never fitted perfectly is not blamed on a new effect.
 2. **Which.** Every effect of the vocabulary is fitted as an augmentation
    (``model.diag_fit``) on alternating training blocks of the log and scored
    on the blocks in between. Greedy forward selection: a round fits every
    remaining effect jointly with those already chosen and takes the best by a
    penalised held-out criterion (effective samples x log MSE + 2 per extra
-   parameter), provided its held-out gain is significant in a
-   forecast-encompassing test (``diag_stats.paired_gain``, Bonferroni over the
-   effects tried) and material: larger than a tenth of the noise variance and
-   than the model's known error variance.
-   A backward pass drops chosen effects that stop paying once the others are
-   in, and a final joint refit polishes the chosen parameters. Candidates whose
+   parameter) among those one test admits (``Decision``): a held-out gain
+   significant in a forecast-encompassing test (``diag_stats.paired_gain``,
+   Bonferroni over the effects tried), material against the floor, and closing
+   a share of the gap the round starts from. The same test admits the first
+   effect, every later one, and keeps each in a backward pass (refit without
+   it); a final joint refit polishes the chosen parameters. Candidates whose
    held-out error is statistically indistinguishable from the chosen one are
-   reported as ambiguous, with the excitation that would separate them.
+   reported as ambiguous, with the excitation that would separate them; a
+   parameter fitted at a bound of its search is reported and halves the
+   effect's confidence.
 3. **How far.** Held-out RMS before and after, and the share of the gap closed
    ``(MSE_nominal - MSE_augmented) / (MSE_nominal - noise^2)``, overall and in
    every cell of step 1.
 
 No I/O: ``diagnose`` returns a ``Diagnosis`` with the report (a JSON-ready
-dict), the augmented ``ModelFile`` and the residual series for plotting.
+dict), the augmented ``ModelFile`` and the residual series for plotting;
+progress goes to an optional callback.
 """
 
 from __future__ import annotations
@@ -37,11 +46,28 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from warpbridge.model.boucwen import forward
 from warpbridge.model.diag_fit import Fit, Problem, Split
-from warpbridge.model.diag_stats import effective_n, input_independence, ljung_box, paired_gain, prewhiten
+from warpbridge.model.diag_stats import (
+    PairedGain,
+    effective_n,
+    input_independence,
+    ljung_box,
+    paired_gain,
+    prewhiten,
+)
 from warpbridge.model.diag_where import Cells, cells, gap_closed, split
-from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from warpbridge.model.effects import (
+    EFFECT_FIELDS,
+    EFFECT_NAMES,
+    Effects,
+    apply_input_effects,
+    apply_output_effects,
+    friction_core,
+)
 from warpbridge.model.identify import noise_floor
+from warpbridge.model.initial_state import estimate_z0
+from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
 
 log = logging.getLogger(__name__)
@@ -78,31 +104,57 @@ DEFAULT_SEPARATE = ("a richer excitation: a random input with sharper reversals 
                     "holds, and (for airspeed effects) a varying airspeed")
 
 
+@dataclass(frozen=True)
+class Decision:
+    """When held-out evidence names an effect; one test admits the first effect, every later one, and
+    keeps each in the backward pass.
+
+    A step from model 0 to model 1 (one more effect) is admitted when, on the scored blocks, model 1's
+    gain in MSE is significant at ``alpha`` (Bonferroni over the effects tried), at least ``min_gain`` x
+    the floor (noise^2 plus the model's known error^2) and at least ``min_share`` of the gap model 0
+    leaves above that floor. The benchmark chooses these on plant families other than the one it scores
+    (leave-one-family-out)."""
+
+    alpha: float = 0.01
+    min_share: float = 0.25
+    min_gain: float = 0.25
+
+    def to_dict(self) -> dict:
+        return {"alpha": self.alpha, "min_share": self.min_share, "min_gain": self.min_gain}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Decision:
+        return cls(**{k: float(d[k]) for k in ("alpha", "min_share", "min_gain") if k in d})
+
+
+# a small grid around the default, for ``alternatives`` (how the verdict depends on the decision)
+DECISION_GRID: tuple[Decision, ...] = tuple(
+    Decision(a, s, g) for a in (0.001, 0.01, 0.05) for s in (0.1, 0.25, 0.5) for g in (0.25, 0.5, 1.0, 2.0))
+
+
 @dataclass
 class DiagnoseOptions:
-    """Decision settings; the defaults are statistical conventions, not tuned to particular logs."""
+    """Search and decision settings; the defaults are statistical conventions checked leave-one-family-out."""
 
     max_effects: int = 3
-    alpha: float = 0.01  # family-wise level of the held-out gain tests (Bonferroni over the effects tried)
-    min_gain_noise: float = 0.1  # a named effect gains at least this x noise^2 of held-out MSE (RMS >= noise / 3)
-    model_error_factor: float = 1.0  # ... and at least this x the model's known error^2
+    decision: Decision = field(default_factory=Decision)
+    alternatives: tuple[Decision, ...] = ()  # also report the verdict each of these decisions gives
     ambiguity_alpha: float = 0.05  # a runner-up not worse than the winner at this level is an equal explanation
-    max_evals: int = 150  # Nelder-Mead evaluations per joint fit
-    joint_refits: int = 3  # candidates per round refitted jointly with the effects already chosen
+    max_evals: int = 120  # Nelder-Mead evaluations per joint fit
+    joint_refits: int = 2  # candidates per round refitted jointly with the effects already chosen
     effects: tuple[str, ...] = EFFECT_NAMES  # the candidates
+    use_model_error: bool = True  # apply the model-error model MODEL.json carries, if any
 
 
 @dataclass
 class Judged:
-    """One candidate in one round: its fit and how it compares with the current model."""
+    """One candidate in one round: its fit and how it compares with the model the round starts from."""
 
     name: str
     fit: Fit
-    gain: object
+    gain: PairedGain
+    share: float  # of the gap above the floor that the round's starting model leaves
     penalised: float
-    significant: bool
-    material: bool
-    accepted: bool = False
     confidence: float = 0.0
     ambiguous_with_best: bool = False
 
@@ -132,6 +184,14 @@ def model_error(fit: FitQuality, noise: float) -> float:
     return math.sqrt(max(held ** 2 - nz ** 2, 0.0))
 
 
+def known_error(model: ModelFile, noise: float, use_model_error: bool) -> float:
+    """What the nominal model (with its model-error correction, if used) is known to get wrong beyond noise."""
+    em = model.model_error if use_model_error else None
+    if em is not None and math.isfinite(em.known_error_deg):
+        return em.known_error_deg
+    return model_error(model.fit, noise)
+
+
 def _new_params(name: str) -> int:
     return len(EFFECT_FIELDS[name][0])
 
@@ -141,9 +201,196 @@ def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
     return replace(eff, **{f: getattr(base, f) for f in EFFECT_FIELDS[name][0]})
 
 
+def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) -> float:
+    """z0 that explains the log's first samples with the model, its effects and its error correction."""
+    eff = model.effects
+    p = friction_core(model.params, eff.friction_scale)
+    x = apply_input_effects(eff, t, u)
+    if not eff.active() and em is None:
+        return estimate_z0(p, x, w)
+
+    def simulate(z0: float, n: int) -> np.ndarray:
+        wc = forward(p, x[:n], z0=z0)[0]
+        if em is not None:
+            wc = wc + em.correction(t[:n], x[:n], wc)
+        return apply_output_effects(eff, t[:n], wc, None if airspeed is None else airspeed[:n])[1]
+
+    return estimate_z0(p, x, w, simulate=simulate)
+
+
+class Explorer:
+    """The candidate fits of every round the decisions ask for, each computed once."""
+
+    def __init__(self, prob: Problem, names: list[str], base: Effects, nominal: Fit, floor2: float,
+                 opt: DiagnoseOptions, progress) -> None:
+        self.prob, self.names, self.base, self.opt, self.progress = prob, names, base, opt, progress
+        self.w = prob.w
+        self.floor2 = floor2
+        self.nominal = nominal
+        self.rounds: dict[tuple[str, ...], list[Judged]] = {}
+        self.fits: dict[tuple, Fit] = {(): nominal}
+        self.neff_cache: dict[tuple[str, ...], float] = {}
+
+    def gain(self, old: Fit, new: Fit) -> PairedGain:
+        return paired_gain(self.w - old.w_pred, self.w - new.w_pred, self.prob.split.chunks)
+
+    def share(self, old: Fit, gain: float) -> float:
+        gap = old.score_mse - self.floor2
+        return gain / gap if gap > 0 and math.isfinite(gain) else 0.0
+
+    def admits(self, d: Decision, old: Fit, new: Fit, g: PairedGain | None = None) -> bool:
+        """The one test: significant, material and a share of the remaining gap."""
+        g = g or self.gain(old, new)
+        level = d.alpha / max(len(self.names), 1)
+        return (g.p_value < level and g.gain >= d.min_gain * self.floor2
+                and self.share(old, g.gain) >= d.min_share)
+
+    def fit_of(self, selected: tuple[str, ...]) -> Fit:
+        if selected not in self.fits:
+            self.round(selected[:-1])
+        return self.fits[selected]
+
+    def round(self, selected: tuple[str, ...]) -> list[Judged]:
+        """Every remaining effect fitted jointly with ``selected`` and judged against ``selected``'s fit."""
+        if selected in self.rounds:
+            return self.rounds[selected]
+        cur = self.fit_of(selected)
+        prob, opt = self.prob, self.opt
+        remaining = [n for n in self.names if n not in selected]
+        label = "round 1" if not selected else f"round {len(selected) + 1} (after {' + '.join(selected)})"
+        fits = {}
+        for i, c in enumerate(remaining):
+            if self.progress:
+                self.progress(label, i, len(remaining))
+            # screen with the chosen effects held (their linear parameters still move), then refit the most
+            # promising jointly: effects interact, and a chosen one may have soaked up part of the new one
+            fits[c] = prob.fit(selected + (c,), start=cur.effects, grid_for=c, free_nonlinear=(c,),
+                               max_evals=opt.max_evals)
+        if selected:
+            for c in sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]:
+                f = prob.fit(selected + (c,), start=fits[c].effects, grid_for="", max_evals=opt.max_evals)
+                if f.train_mse <= fits[c].train_mse:
+                    fits[c] = f
+        if self.progress:
+            self.progress(label, len(remaining), len(remaining))
+        best_mse = min((f.score_mse for f in fits.values()), default=math.inf)
+        best_fit = next((f for f in fits.values() if f.score_mse == best_mse), cur)
+        neff = effective_n((self.w - best_fit.w_pred)[prob.split.score])
+        judged = []
+        for c in remaining:
+            f = fits[c]
+            g = self.gain(cur, f)
+            ok = f.score_mse > 0 and cur.score_mse > 0 and math.isfinite(f.score_mse)
+            pen = neff * math.log(cur.score_mse / f.score_mse) - 2 * _new_params(c) if ok else -math.inf
+            judged.append(Judged(c, f, g, self.share(cur, g.gain), pen))
+            self.fits[selected + (c,)] = f
+        self.rounds[selected] = judged
+        return judged
+
+    def without(self, selected: tuple[str, ...], drop: str, cur: Fit) -> Fit:
+        key = ("without", selected, drop)
+        if key not in self.fits:
+            rest = tuple(x for x in selected if x != drop)
+            if self.progress:
+                self.progress("backward check", 0, 1)
+            self.fits[key] = self.prob.fit(rest, start=_neutral(cur.effects, drop, self.base), grid_for="",
+                                           max_evals=self.opt.max_evals)
+        return self.fits[key]
+
+    def final(self, selected: tuple[str, ...], cur: Fit) -> Fit:
+        key = ("final", selected)
+        if key not in self.fits:
+            if self.progress:
+                self.progress("joint refit", 0, 1)
+            f = self.prob.fit(selected, start=cur.effects, grid_for="", max_evals=2 * self.opt.max_evals)
+            self.fits[key] = f if f.train_mse <= cur.train_mse else cur
+        return self.fits[key]
+
+
+@dataclass
+class Path:
+    """What one decision makes of the explored rounds."""
+
+    selected: tuple[str, ...]
+    fit: Fit
+    chosen_round: dict[str, int]
+    chosen_from: dict[str, Fit]  # the fit each chosen effect was judged against
+    start_mse: list[float]
+    dropped: list[dict]
+    notes: list[str]
+
+
+def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
+    """Greedy forward selection under decision ``d`` (with a beam of two in round 2), a backward pass with
+    the same test, then a joint refit."""
+    sel: tuple[str, ...] = ()
+    cur = ex.nominal
+    chosen_round: dict[str, int] = {}
+    chosen_from: dict[str, Fit] = {}
+    start_mse: list[float] = []
+    notes: list[str] = []
+    runner_up: Judged | None = None
+    for rnd in range(min(max_effects, len(ex.names))):
+        judged = ex.round(sel)
+        start_mse.append(cur.score_mse)
+        acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain)]
+        if rnd == 1 and runner_up is not None:
+            # a beam of two in the second round: the first round's winner may imitate two effects at once,
+            # and then only its runner-up leads to the right pair
+            alt = ex.round((runner_up.name,))
+            alt_acc = [j for j in alt if ex.admits(d, runner_up.fit, j.fit, j.gain)]
+            a_best = max(alt_acc, key=lambda j: j.penalised) if alt_acc else None
+            m_best = max(acc, key=lambda j: j.penalised) if acc else None
+            if a_best is not None and (m_best is None or a_best.fit.score_mse < m_best.fit.score_mse) \
+                    and ex.admits(d, cur, a_best.fit):
+                notes.append(f"round 2 went on from the first round's runner-up {runner_up.name} instead of "
+                             f"{sel[0]}: together with a second effect it explains the log better")
+                chosen_round = {runner_up.name: 1}
+                chosen_from = {runner_up.name: ex.nominal}
+                sel = (runner_up.name,)
+                cur = runner_up.fit
+                start_mse[-1] = cur.score_mse
+                acc = alt_acc
+        if not acc:
+            break
+        best = max(acc, key=lambda j: j.penalised)
+        if rnd == 0:
+            # the runner-up gets a second round of its own only when it explains nearly as much (at least half
+            # the winner's gain): only then can the winner be imitating it together with another effect
+            others = sorted((j for j in acc if j is not best and j.gain.gain >= 0.5 * best.gain.gain),
+                            key=lambda j: -j.penalised)
+            runner_up = others[0] if others else None
+        chosen_from[best.name] = cur
+        sel = sel + (best.name,)
+        chosen_round[best.name] = rnd + 1
+        cur = best.fit
+    dropped: list[dict] = []
+    changed = True
+    while changed and len(sel) >= 2:
+        changed = False
+        for s in sel:
+            f = ex.without(sel, s, cur)
+            g = ex.gain(f, cur)
+            if not ex.admits(d, f, cur, g):
+                dropped.append({"effect": s, "gain_ms_when_kept": g.gain, "p_value": g.p_value,
+                                "share_when_kept": ex.share(f, g.gain),
+                                "reason": "once the others are fitted it adds no significant, material share "
+                                          "of the gap"})
+                sel = tuple(x for x in sel if x != s)
+                chosen_round.pop(s, None)
+                cur = f
+                changed = True
+                break
+    if sel:
+        cur = ex.final(sel, cur)
+    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes)
+
+
 def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
              progress: Callable[[str, int, int], None] | None = None) -> Diagnosis:
-    """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None)."""
+    """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None).
+
+    ``progress(stage, i, n)`` is called as the work advances (no I/O here)."""
     opt = options or DiagnoseOptions()
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
@@ -156,7 +403,11 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         raise ValueError("t, u and warp must be finite")
     if np.ptp(u) <= 0:
         raise ValueError("the tendon input never changes: nothing to diagnose")
-    prob = Problem(t, u, w, airspeed, model.params, model.effects, model.z0)
+    if progress:
+        progress("initial state", 0, 1)
+    em = model.model_error if opt.use_model_error else None
+    z0 = initial_state(t, u, w, airspeed, model, em)
+    prob = Problem(t, u, w, airspeed, model.params, model.effects, z0, error_model=em)
     sp = prob.split
     if sp.score.sum() < 20 or sp.train.sum() < 20:
         raise ValueError("log too short after the warm-up to split into training and scoring blocks")
@@ -164,8 +415,8 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     w_nom = prob.predict(base)
     r0 = w - w_nom
     noise = noise_floor(w)
-    e_m = model_error(model.fit, noise)
-    floor_gain = max(opt.min_gain_noise * noise ** 2, opt.model_error_factor * e_m ** 2)
+    e_m = known_error(model, noise, opt.use_model_error)
+    floor2 = noise ** 2 + e_m ** 2
     analysed = sp.train | sp.score
     cl = cells(t, u, w_nom, airspeed)
     where = split(t, u, r0, cl, analysed, noise, e_m)
@@ -176,70 +427,20 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     names = [n for n in opt.effects if n != "aero_load" or prob.has_airspeed]
     why = "the log has no airspeed" if airspeed is None else "the airspeed is zero throughout the log"
     skipped = {n: why for n in opt.effects if n not in names}
-    level = opt.alpha / max(len(names), 1)
     nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
-    cur = nominal
-    selected: list[str] = []
-    rounds: list[list[Judged]] = []
-    start_mse: list[float] = []  # held-out MSE of the model each round starts from
-    ambiguities: list[dict] = []
-    chosen_conf: dict[str, float] = {}
-    chosen_round: dict[str, int] = {}
-    total_rounds = min(opt.max_effects, len(names))
-    runner_up: Judged | None = None
-    notes: list[str] = []
-    for rnd in range(total_rounds):
-        if len(selected) >= len(names):
-            break
-        judged = _round(prob, selected, cur, names, w, sp, level, floor_gain, opt, progress, rnd + 1)
-        start_mse.append(cur.score_mse)
-        acc = [j for j in judged if j.accepted]
-        if rnd == 1 and runner_up is not None:
-            # a beam of two in the second round: the first round's winner may imitate two effects at once,
-            # and then only its runner-up leads to the right pair
-            alt = _round(prob, [runner_up.name], runner_up.fit, names, w, sp, level, floor_gain, opt, progress, 2)
-            alt_acc = [j for j in alt if j.accepted]
-            a_best = max(alt_acc, key=lambda j: j.penalised) if alt_acc else None
-            m_best = max(acc, key=lambda j: j.penalised) if acc else None
-            if a_best is not None and (m_best is None or a_best.fit.score_mse < m_best.fit.score_mse):
-                g = paired_gain(w - cur.w_pred, w - a_best.fit.w_pred, sp.chunks)
-                if g.p_value < level and g.gain > floor_gain:
-                    notes.append(f"round 2 went on from the first round's runner-up {runner_up.name} instead of "
-                                 f"{selected[0]}: together with a second effect it explains the log better")
-                    chosen_conf.pop(selected[0], None)
-                    chosen_round.pop(selected[0], None)
-                    selected = [runner_up.name]
-                    chosen_conf[runner_up.name] = runner_up.confidence
-                    chosen_round[runner_up.name] = 1
-                    cur = runner_up.fit
-                    start_mse[-1] = cur.score_mse
-                    judged, acc = alt, alt_acc
-        rounds.append(judged)
-        if not acc:
-            break
-        best = max(acc, key=lambda j: j.penalised)
-        if rnd == 0:
-            others = sorted((j for j in acc if j is not best), key=lambda j: -j.penalised)
-            runner_up = others[0] if others else None
-        selected.append(best.name)
-        chosen_conf[best.name] = best.confidence
-        chosen_round[best.name] = rnd + 1
-        cur = best.fit
-        alts = [j for j in acc if j is not best and j.ambiguous_with_best]
-        if alts:
-            ambiguities.append(_ambiguity(best, alts, rnd + 1))
-        log.info("round %d: %s (held-out RMS %.4f -> %.4f deg)", rnd + 1, best.name,
-                 math.sqrt(max(nominal.score_mse, 0)), math.sqrt(max(cur.score_mse, 0)))
-
-    dropped: list[dict] = []
-    if len(selected) >= 2:
-        cur, selected = _backward(prob, cur, selected, base, w, sp, level, floor_gain, opt, dropped)
-    if selected:
+    ex = Explorer(prob, names, base, nominal, floor2, opt, progress)
+    path = decide(ex, opt.decision, opt.max_effects)
+    alternatives = []
+    for k, d in enumerate(opt.alternatives):
         if progress:
-            progress("joint refit", 0, 1)
-        final = prob.fit(tuple(selected), start=cur.effects, grid_for="", max_evals=3 * opt.max_evals)
-        if final.train_mse <= cur.train_mse:
-            cur = final
+            progress("alternative decisions", k, len(opt.alternatives))
+        alt = path if d == opt.decision else decide(ex, d, opt.max_effects)
+        alternatives.append({"decision": d.to_dict(), "verdict": list(alt.selected),
+                             "effects": {n: alt.fit.values([n])[n] for n in alt.selected},
+                             "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse)})
+    selected = list(path.selected)
+    cur = path.fit
+    rounds, ambiguities, chosen_conf = _main_rounds(ex, path, opt)
     w_aug = cur.w_pred if selected else w_nom
     r1 = w - w_aug
 
@@ -248,10 +449,17 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     shrinkage = {
         "heldout_rms_before_deg": math.sqrt(mse0), "heldout_rms_after_deg": math.sqrt(mse1),
         "gap_closed": gap_closed(mse0, mse1, noise ** 2),
-        "gap_closed_beyond_model_error": gap_closed(mse0, mse1, noise ** 2 + e_m ** 2),
+        "gap_closed_beyond_model_error": gap_closed(mse0, mse1, floor2),
         "where": {k: v for k, v in shrink.items() if k not in ("scores", "dominant", "dominant_cell")},
     }
-    cand = _candidate_table(names, skipped, rounds, start_mse, selected, chosen_conf, chosen_round, cur, nominal)
+    hits = cur.bound_hits() if selected else []
+    for h in hits:
+        h["meaning"] = _bound_meaning(h)
+        chosen_conf[h["effect"]] = chosen_conf.get(h["effect"], 0.0) * BOUND_CONFIDENCE
+    cand = _candidate_table(names, skipped, rounds, path, chosen_conf, cur, nominal, hits)
+    notes = list(path.notes)
+    for h in hits:
+        notes.append(h["meaning"])
     residual_is_noise = white.passed and indep.passed
     if not selected and not residual_is_noise:
         notes.append("the residual is structured but no effect explains a significant, material share of it: "
@@ -263,20 +471,27 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     meta = dict(model.meta)
     meta["augmented_by"] = "warpbridge diagnose"
     meta["verdict"] = list(selected)
-    augmented = ModelFile(params=model.params, effects=eff_out, z0=model.z0, fit=fitq, meta=meta)
+    augmented = ModelFile(params=model.params, effects=eff_out, z0=model.z0, fit=fitq, meta=meta,
+                          model_error=model.model_error)
     report = {
         "format": REPORT_FORMAT,
         "verdict": list(selected),
         "effects": {n: cur.values([n])[n] for n in selected},
         "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
-        "noise_deg": noise, "model_error_deg": e_m, "min_material_gain_ms": floor_gain,
+        "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
+        "decision": opt.decision.to_dict(),
+        "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
+                                              "clamped to the reachable band, refined on the prediction error)"},
+        "model_error_model": _em_summary(model.model_error, em is not None),
         "residual_is_noise": residual_is_noise,
         "tests": {"whiteness": white.to_dict(), "input_independence": indep.to_dict()},
         "where": where,
         "candidates": cand,
+        "bound_hits": hits,
         "ambiguities": ambiguities,
-        "dropped": dropped,
+        "dropped": path.dropped,
         "shrinkage": shrinkage,
+        "alternatives": alternatives,
         "split": {"scheme": "10 alternating blocks, blocks 2, 5, 7, 10 scored", "warmup_samples": sp.start,
                   "train_samples": int(sp.train.sum()), "score_samples": int(sp.score.sum()),
                   "score_chunks": int(sp.chunks.max() + 1)},
@@ -288,85 +503,64 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     return Diagnosis(list(selected), report, augmented, t, u, w, w_nom, w_aug, sp, cl)
 
 
-def _round(prob: Problem, selected: list[str], cur: Fit, names: list[str], w: np.ndarray, sp: Split, level: float,
-           floor_gain: float, opt: DiagnoseOptions, progress, rnd: int) -> list[Judged]:
-    """Fit every effect not yet chosen on top of ``cur`` (jointly with the chosen ones) and judge it."""
-    remaining = [n for n in names if n not in selected]
-    fits = {}
-    for i, c in enumerate(remaining):
-        if progress:
-            progress(f"round {rnd}", i, len(remaining))
-        # screen with a short joint fit (the chosen effects may move: effects interact), then refit the
-        # most promising ones fully
-        fits[c] = prob.fit(tuple(selected) + (c,), start=cur.effects, grid_for=c,
-                           max_evals=opt.max_evals if not selected else opt.max_evals // 3)
-    if selected:
-        for c in sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]:
-            f = prob.fit(tuple(selected) + (c,), start=fits[c].effects, grid_for="", max_evals=opt.max_evals)
-            if f.train_mse <= fits[c].train_mse:
-                fits[c] = f
-    judged = [_judge(c, fits[c], cur, w, sp, level, floor_gain) for c in remaining]
-    _rank(judged, w, sp, cur, opt.ambiguity_alpha, floor_gain)
-    return judged
+BOUND_CONFIDENCE = 0.5  # confidence factor of an effect whose fitted parameter sits at a bound of its search
 
 
-def _judge(name: str, f: Fit, cur: Fit, w: np.ndarray, sp: Split, level: float, floor_gain: float) -> Judged:
-    g = paired_gain(w - cur.w_pred, w - f.w_pred, sp.chunks)
-    return Judged(name, f, g, -math.inf, g.p_value < level, g.gain > floor_gain)
+def _bound_meaning(h: dict) -> str:
+    return (f"{h['effect']}: {h['parameter']} sits at the {h['bound']} bound of its search ({h['limit']:.4g}): "
+            f"the effect is larger than the model allows, or another effect is at work; "
+            f"confidence halved")
 
 
-def _rank(judged: list[Judged], w: np.ndarray, sp: Split, cur: Fit, amb_alpha: float, floor_gain: float) -> None:
-    """Penalised criterion, acceptance, ambiguity with the winner and a confidence for each candidate."""
-    best_mse = min(j.fit.score_mse for j in judged)
-    best_fit = next(j.fit for j in judged if j.fit.score_mse == best_mse)
-    neff = effective_n((w - best_fit.w_pred)[sp.score])
-    for j in judged:
-        ok = j.fit.score_mse > 0 and cur.score_mse > 0 and math.isfinite(j.fit.score_mse)
-        j.penalised = neff * math.log(cur.score_mse / j.fit.score_mse) - 2 * _new_params(j.name) if ok else -math.inf
-        j.accepted = j.significant and j.material and j.penalised > 0
-    acc = [j for j in judged if j.accepted]
-    support = {j.name: 1.0 - j.gain.p_value for j in judged}
-    if not acc:
+def _em_summary(em: ErrorModel | None, used: bool) -> dict:
+    if em is None:
+        return {"present": False, "used": False}
+    return {"present": True, "used": used, "feature_sets": list(em.sets),
+            "bench_rms_before_deg": em.rms_before_deg, "bench_rms_after_deg": em.rms_after_deg,
+            "known_error_deg": em.known_error_deg}
+
+
+def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[list[Judged]], list[dict], dict]:
+    """The rounds along the chosen path, with ranks, ambiguities and confidences."""
+    d = opt.decision
+    rounds: list[list[Judged]] = []
+    ambiguities: list[dict] = []
+    chosen_conf: dict[str, float] = {}
+    order = sorted(path.chosen_round, key=path.chosen_round.get)
+    prefixes = [tuple(order[:k]) for k in range(len(order) + 1)]
+    for k, pre in enumerate(prefixes):
+        if pre not in ex.rounds:
+            break
+        judged = ex.rounds[pre]
+        cur = ex.fit_of(pre) if pre else ex.nominal
+        rounds.append(judged)
+        acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain)]
         for j in judged:
             j.confidence = 0.0
-        return
-    best = max(acc, key=lambda j: j.penalised)
-    best_conf = support[best.name]
-    for j in acc:
-        if j is best:
+            j.ambiguous_with_best = False
+        if not acc:
             continue
-        g = paired_gain(w - j.fit.w_pred, w - best.fit.w_pred, sp.chunks)  # is best better than j?
-        p = g.p_value
-        # about equal: not significantly worse, or worse by less than a material gain
-        j.ambiguous_with_best = p > amb_alpha or g.gain < floor_gain
-        if j.ambiguous_with_best:
-            p = max(p, 0.5 * (1.0 - g.gain / floor_gain)) if g.gain < floor_gain else p
-        j.confidence = support[j.name] * min(1.0, 2.0 * p)
-        best_conf = min(best_conf, support[best.name] * min(1.0, 2.0 * (1.0 - p)))
-    best.confidence = best_conf
-    for j in judged:
-        if not j.accepted:
-            j.confidence = 0.0
-
-
-def _backward(prob: Problem, cur: Fit, selected: list[str], base: Effects, w, sp: Split, level: float,
-              floor_gain: float, opt: DiagnoseOptions, dropped: list[dict]) -> tuple[Fit, list[str]]:
-    """Drop chosen effects that no longer pay once the others are in (refitting the rest)."""
-    changed = True
-    while changed and len(selected) >= 2:
-        changed = False
-        for s in list(selected):
-            rest = [x for x in selected if x != s]
-            f = prob.fit(tuple(rest), start=_neutral(cur.effects, s, base), grid_for="", max_evals=opt.max_evals)
-            g = paired_gain(w - f.w_pred, w - cur.w_pred, sp.chunks)
-            if not (g.p_value < level and g.gain > floor_gain):
-                dropped.append({"effect": s, "gain_ms_when_kept": g.gain, "p_value": g.p_value,
-                                "reason": "no significant, material held-out gain once the others are fitted"})
-                selected = rest
-                cur = f
-                changed = True
-                break
-    return cur, selected
+        best = next((j for j in acc if k < len(order) and j.name == order[k]), max(acc, key=lambda j: j.penalised))
+        floor_gain = d.min_gain * ex.floor2
+        support = {j.name: 1.0 - j.gain.p_value for j in judged}
+        best_conf = support[best.name]
+        for j in acc:
+            if j is best:
+                continue
+            g = ex.gain(j.fit, best.fit)  # is best better than j?
+            p = g.p_value
+            j.ambiguous_with_best = p > opt.ambiguity_alpha or g.gain < floor_gain
+            if j.ambiguous_with_best and g.gain < floor_gain and floor_gain > 0:
+                p = min(1.0, max(p, 0.5 * (1.0 - g.gain / floor_gain)))
+            j.confidence = support[j.name] * min(1.0, 2.0 * p)
+            best_conf = min(best_conf, support[best.name] * min(1.0, 2.0 * (1.0 - p)))
+        best.confidence = best_conf
+        if best.name in path.selected:
+            chosen_conf[best.name] = best_conf
+            alts = [j for j in acc if j is not best and j.ambiguous_with_best]
+            if alts:
+                ambiguities.append(_ambiguity(best, alts, k + 1))
+    return rounds, ambiguities, chosen_conf
 
 
 def _ambiguity(best: Judged, alts: list[Judged], rnd: int) -> dict:
@@ -380,9 +574,10 @@ def _ambiguity(best: Judged, alts: list[Judged], rnd: int) -> dict:
             "to_separate": how}
 
 
-def _candidate_table(names, skipped, rounds, start_mse, selected, chosen_conf, chosen_round, final: Fit,
-                     nominal: Fit) -> list[dict]:
+def _candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, chosen_conf: dict[str, float],
+                     final: Fit, nominal: Fit, hits: list[dict]) -> list[dict]:
     out = []
+    selected = path.selected
     first = {j.name: j for j in rounds[0]} if rounds else {}
     for n in list(names) + list(skipped):
         row: dict = {"effect": n, "parameters": list(EFFECT_FIELDS[n][0]), "in_verdict": n in selected}
@@ -393,11 +588,14 @@ def _candidate_table(names, skipped, rounds, start_mse, selected, chosen_conf, c
         row["tried"] = True
         j1 = first.get(n)
         if j1 is not None:
+            alone_hits = j1.fit.bound_hits()
+            for h in alone_hits:
+                h["meaning"] = _bound_meaning(h)
             row["alone"] = {"fitted": j1.fit.values([n])[n],
                             "heldout_rms_before_deg": math.sqrt(nominal.score_mse),
                             "heldout_rms_after_deg": math.sqrt(j1.fit.score_mse),
                             "heldout_gain_ms": j1.gain.gain, "p_value": j1.gain.p_value,
-                            "significant": j1.significant, "material": j1.material}
+                            "share_of_gap": j1.share, "at_bound": alone_hits}
         per_round = []
         for k, judged in enumerate(rounds):
             for j in judged:
@@ -405,17 +603,20 @@ def _candidate_table(names, skipped, rounds, start_mse, selected, chosen_conf, c
                     per_round.append({"round": k + 1, "with": [x for x in j.fit.names if x != n],
                                       "fitted": j.fit.values(), "heldout_rms_after_deg": math.sqrt(j.fit.score_mse),
                                       "heldout_gain_ms": j.gain.gain, "p_value": j.gain.p_value,
-                                      "accepted": j.accepted, "confidence": j.confidence})
+                                      "share_of_gap": j.share, "confidence": j.confidence})
         row["rounds"] = per_round
+        row["at_bound"] = [h for h in hits if h["effect"] == n] if n in selected else row.get("alone", {}).get(
+            "at_bound", [])
         if n in selected:
             row["fitted"] = final.values([n])[n]
             row["confidence"] = chosen_conf.get(n, 0.0)
-            chosen = [r for r in per_round if r["round"] == chosen_round.get(n)]
+            rnd = path.chosen_round.get(n)
+            chosen = [r for r in per_round if r["round"] == rnd]
             if chosen:
-                prev = math.sqrt(start_mse[chosen[0]["round"] - 1])
-                row["chosen"] = {"round": chosen[0]["round"], "heldout_rms_before_deg": prev,
+                prev = math.sqrt(path.start_mse[rnd - 1]) if rnd - 1 < len(path.start_mse) else None
+                row["chosen"] = {"round": rnd, "heldout_rms_before_deg": prev,
                                  "heldout_rms_after_deg": chosen[0]["heldout_rms_after_deg"],
-                                 "p_value": chosen[0]["p_value"]}
+                                 "p_value": chosen[0]["p_value"], "share_of_gap": chosen[0]["share_of_gap"]}
         else:
             row["fitted"] = j1.fit.values([n])[n] if j1 is not None else None
             row["confidence"] = max((r["confidence"] for r in per_round), default=0.0)
@@ -434,6 +635,11 @@ def summary_lines(rep: dict) -> list[str]:
     sh = rep["shrinkage"]
     lines.append(f"residual RMS {where['rms_deg']:.4f} deg against a floor of {where['floor_deg']:.4f} deg "
                  f"(noise {rep['noise_deg']:.4f}, model's known error {rep['model_error_deg']:.4f})")
+    em = rep.get("model_error_model") or {}
+    if em.get("used"):
+        lines.append(f"bench model error: {em['bench_rms_before_deg']:.4f} deg RMS on the bench, "
+                     f"{em['bench_rms_after_deg']:.4f} with its correction ({', '.join(em['feature_sets']) or 'none'})"
+                     "; the field is judged against the corrected model")
     if where.get("dominant"):
         sc = where["scores"]
         parts = ", ".join(f"{k} {v:.0%}" for k, v in sorted(sc.items(), key=lambda kv: -kv[1]))
@@ -451,7 +657,8 @@ def summary_lines(rep: dict) -> list[str]:
         a = c.get("alone") or {}
         mark = "*" if c["in_verdict"] else " "
         line = (f"{mark} {c['effect']:<11} alone: held-out RMS {a.get('heldout_rms_before_deg', math.nan):.4f} -> "
-                f"{a.get('heldout_rms_after_deg', math.nan):.4f} deg, p={a.get('p_value', 1.0):.2g}")
+                f"{a.get('heldout_rms_after_deg', math.nan):.4f} deg, p={a.get('p_value', 1.0):.2g}, "
+                f"{a.get('share_of_gap', 0.0):.0%} of the gap")
         ch = c.get("chosen")
         if ch and ch["round"] > 1:
             before = ch["heldout_rms_before_deg"]
@@ -466,6 +673,8 @@ def summary_lines(rep: dict) -> list[str]:
             lines.append(f"  {' vs '.join(h['effects'])}: {h['excitation']}")
     for d in rep["dropped"]:
         lines.append(f"dropped {d['effect']}: {d['reason']}")
+    for h in rep.get("bound_hits", []):
+        lines.append(f"at a bound: {h['meaning']}")
     verdict = rep["verdict"]
     if verdict:
         gc = sh["gap_closed"]

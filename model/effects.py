@@ -11,11 +11,22 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
-| friction    | friction_scale                 | az -> friction_scale * az (loop widens or narrows)   |
+| friction    | friction_scale                 | the loop widens or narrows about its middle          |
 | pretension  | pretension_offset_mm, _gain    | u_eff = gain * (u - offset)                          |
 | sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
-| drift       | drift_deg_s                    | w_meas += drift_deg_s * (t - t0)                     |
+| drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
 | aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
+
+Friction scales the hysteretic part of the tendon travel about the middle of
+its band, ``az z -> az (z_mid + s (z - z_mid))`` with z_mid halfway between
+the saturation levels of loading and unloading: the loop widens or narrows
+while its centre line (the elastic backbone) stays where it was. (Scaling az
+alone would also move the loop by ``(s - 1) az z_mid``, which a fit then has
+to undo with a pre-tension offset.)
+
+The drift is a sensor zero warming up: it starts at ``drift_deg_s`` deg/s and
+settles with time constant ``drift_tau_s``; ``drift_tau_s = inf`` (the default,
+and what a file without the field means) is a steady ramp.
 
 All operators are plain functions on arrays (compiled) plus a per-sample state
 machine in ``model.plant`` that gives the same results.
@@ -45,7 +56,7 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
                    "pre-tension changed: the loop shifts in input and scales"),
     "sensor_lag": (("sensor_tau_s",), (0.0,), "first-order lag in the warp measurement"),
-    "drift": (("drift_deg_s",), (0.0,), "slow drift of the warp sensor's zero over the log"),
+    "drift": (("drift_deg_s", "drift_tau_s"), (0.0, math.inf), "slow drift of the warp sensor's zero over the log"),
     "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
                   "airspeed-dependent load on the trailing edge: warp lost in proportion to dynamic pressure"),
 }
@@ -63,6 +74,7 @@ class Effects:
     pretension_gain: float = 1.0
     sensor_tau_s: float = 0.0
     drift_deg_s: float = 0.0
+    drift_tau_s: float = math.inf
     aero_gain_per_kpa: float = 0.0
     aero_deg_per_kpa: float = 0.0
 
@@ -78,6 +90,8 @@ class Effects:
             raise ValueError("rate limit must be positive")
         if not self.friction_scale > 0 or not self.pretension_gain > 0:
             raise ValueError("friction scale and pre-tension gain must be positive")
+        if not self.drift_tau_s > 0:
+            raise ValueError("drift time constant must be positive")
 
     def active(self) -> list[str]:
         """Names of the effects whose parameters differ from neutral."""
@@ -105,8 +119,10 @@ class Effects:
         return replace(self, **kw)
 
     def to_dict(self) -> dict[str, dict[str, float]]:
-        """{effect name: {parameter: value}} for the active effects."""
-        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0]} for name in self.active()}
+        """{effect name: {parameter: value}} for the active effects; an infinite value (no limit, a steady
+        ramp) is left out, which reads back as the same."""
+        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0] if math.isfinite(getattr(self, f))}
+                for name in self.active()}
 
     @classmethod
     def from_dict(cls, d: dict) -> Effects:
@@ -121,11 +137,26 @@ class Effects:
             for f, v in params.items():
                 if f not in EFFECT_FIELDS[name][0]:
                     raise ValueError(f"effect {name!r} has no parameter {f!r}")
+                if v is None and math.isinf(EFFECT_FIELDS[name][1][EFFECT_FIELDS[name][0].index(f)]):
+                    continue  # null: no limit / a steady ramp
                 try:
                     kw[f] = float(v)
                 except (TypeError, ValueError):
                     raise ValueError(f"effect parameter {f!r} must be a number") from None
         return cls(**kw)
+
+
+def friction_core(params, scale: float):
+    """Bouc-Wen parameters (``model.boucwen.BoucWenParams``) with the friction effect folded in: az scaled
+    by ``scale`` and a3 moved so that the middle of the hysteresis band stays put (see the module docstring)."""
+    if scale == 1.0:
+        return params
+    try:
+        hi, lo = params.z_saturation(1.0)
+    except (ValueError, ZeroDivisionError, OverflowError):
+        hi = lo = math.nan
+    mid = 0.5 * (hi + lo) if math.isfinite(hi) and math.isfinite(lo) else 0.0
+    return replace(params, az=params.az * scale, a3=params.a3 + params.az * (1.0 - scale) * mid)
 
 
 def dynamic_pressure_kpa(airspeed) -> np.ndarray:
@@ -238,5 +269,12 @@ def apply_output_effects(eff: Effects, t: np.ndarray, w_model: np.ndarray, airsp
     if eff.sensor_tau_s > 0:
         w_meas = lagged(t, np.ascontiguousarray(w_meas), eff.sensor_tau_s, float(w_meas[0]))
     if eff.drift_deg_s != 0.0:
-        w_meas = w_meas + eff.drift_deg_s * (t - t[0])
+        w_meas = w_meas + eff.drift_deg_s * drift_shape(t - t[0], eff.drift_tau_s)
     return w, w_meas
+
+
+def drift_shape(dt, tau: float):
+    """Zero drift per deg/s of initial rate after dt s: tau (1 - exp(-dt / tau)), or dt for tau = inf."""
+    if not math.isfinite(tau):
+        return dt
+    return -tau * np.expm1(-np.asarray(dt, dtype=np.float64) / tau)

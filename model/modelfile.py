@@ -2,7 +2,10 @@
 
 A model file holds the Bouc-Wen parameters, the initial state, optional
 effects (applied by ``predict`` and the bridge's feed-forward), the fit
-quality ``identify`` measured and free-form provenance.
+quality ``identify`` measured, free-form provenance and, optionally, the
+model-error model learned from the bench residual (``"model_error"``, read by
+``diagnose``). The field is optional both ways: files without it load as
+before, and readers that predate it ignore it.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from dataclasses import dataclass, field
 
 from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.model.effects import Effects
+from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.plant import Plant
 
 FORMAT = "warpbridge-model/1"
@@ -50,13 +54,14 @@ class ModelFile:
     z0: float = 0.0
     fit: FitQuality = field(default_factory=FitQuality)
     meta: dict = field(default_factory=dict)
+    model_error: ErrorModel | None = None
 
     @property
     def plant(self) -> Plant:
         return Plant(self.params, self.effects)
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "format": FORMAT,
             "model": "generalized-bouc-wen",
             "units": {"u": "mm", "warp": "deg", "t": "s", "airspeed": "m/s"},
@@ -66,6 +71,9 @@ class ModelFile:
             "fit": self.fit.to_dict(),
             "meta": self.meta,
         }
+        if self.model_error is not None:
+            d["model_error"] = self.model_error.to_dict()
+        return d
 
     @classmethod
     def from_dict(cls, d) -> ModelFile:
@@ -87,4 +95,7 @@ class ModelFile:
         except (TypeError, ValueError):
             raise ValueError("model file z0 must be a number") from None
         fit = FitQuality.from_dict(d.get("fit") or {})
-        return cls(params=params, effects=effects, z0=z0, fit=fit, meta=dict(d.get("meta") or {}))
+        em = d.get("model_error")
+        model_error = ErrorModel.from_dict(em) if em is not None else None
+        return cls(params=params, effects=effects, z0=z0, fit=fit, meta=dict(d.get("meta") or {}),
+                   model_error=model_error)

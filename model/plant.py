@@ -9,13 +9,20 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from warpbridge.model import kernels as K
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
-from warpbridge.model.effects import Effects, apply_input_effects, apply_output_effects, dynamic_pressure_kpa
+from warpbridge.model.effects import (
+    Effects,
+    apply_input_effects,
+    apply_output_effects,
+    drift_shape,
+    dynamic_pressure_kpa,
+    friction_core,
+)
 
 
 @dataclass(frozen=True)
@@ -26,10 +33,8 @@ class Plant:
     effects: Effects = field(default_factory=Effects)
 
     def core_params(self) -> BoucWenParams:
-        """Bouc-Wen parameters with the friction effect folded in (az scaled)."""
-        if self.effects.friction_scale == 1.0:
-            return self.params
-        return replace(self.params, az=self.params.az * self.effects.friction_scale)
+        """Bouc-Wen parameters with the friction effect folded in (the loop scaled about its middle)."""
+        return friction_core(self.params, self.effects.friction_scale)
 
     def simulate(self, t, u, airspeed=None, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(w_true, w_meas) in deg for tendon command u (mm) sampled at times t (s)."""
@@ -115,6 +120,6 @@ class PlantStepper:
             self._lag_y = a * self._lag_y + (1.0 - a) * w_true
             w_meas = self._lag_y
         if e.drift_deg_s != 0.0:
-            w_meas = w_meas + e.drift_deg_s * (t - self._t0)
+            w_meas = w_meas + e.drift_deg_s * float(drift_shape(t - self._t0, e.drift_tau_s))
         self._t_prev = float(t)
         return w_true, w_meas

@@ -22,7 +22,7 @@ from pathlib import Path
 from warpbridge.bridge.commands.logfile import read_log, write_text_atomic
 from warpbridge.bridge.commands.modelio import load_model, save_model
 from warpbridge.bridge.errors import UserError
-from warpbridge.model.diagnose import DiagnoseOptions, diagnose
+from warpbridge.model.diagnose import DECISION_GRID, Decision, DiagnoseOptions, diagnose
 from warpbridge.model.effects import EFFECT_NAMES
 
 
@@ -38,7 +38,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-effects", type=int, default=3, help="most effects named at once (default 3)")
     p.add_argument("--alpha", type=float, default=0.01,
                    help="family-wise significance level of the held-out tests (default 0.01)")
-    p.add_argument("--quiet", action="store_true", help="no summary on the terminal, only the file names")
+    p.add_argument("--no-model-error", action="store_true",
+                   help="ignore the model-error model MODEL.json carries (judge the field against the bare model)")
+    p.add_argument("--sensitivity", action="store_true",
+                   help="also report the verdict under stricter and looser decision thresholds (slower)")
+    p.add_argument("--quiet", action="store_true", help="no summary and no progress on the terminal, only the "
+                                                      "file names")
 
 
 def _options(args: argparse.Namespace) -> DiagnoseOptions:
@@ -52,7 +57,41 @@ def _options(args: argparse.Namespace) -> DiagnoseOptions:
         raise UserError(f"--max-effects must lie between 1 and {len(EFFECT_NAMES)}")
     if not 0 < args.alpha < 0.5:
         raise UserError("--alpha must lie between 0 and 0.5")
-    return DiagnoseOptions(max_effects=args.max_effects, alpha=args.alpha, effects=names)
+    return DiagnoseOptions(max_effects=args.max_effects, decision=Decision(alpha=args.alpha), effects=names,
+                           use_model_error=not args.no_model_error,
+                           alternatives=DECISION_GRID if args.sensitivity else ())
+
+
+class Progress:
+    """Diagnosis progress on stderr: a tqdm bar per stage on a terminal, a line per stage otherwise."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.bar = None
+        self.stage: str | None = None
+        self.t0 = time.perf_counter()
+
+    def __call__(self, stage: str, i: int, n: int) -> None:
+        if not self.enabled:
+            return
+        if not sys.stderr.isatty():
+            if stage != self.stage:
+                self.stage = stage
+                print(f"diagnose: {stage} ({time.perf_counter() - self.t0:.0f} s)", file=sys.stderr, flush=True)
+            return
+        from tqdm import tqdm
+
+        if stage != self.stage:
+            self.close()
+            self.bar = tqdm(total=max(n, 1), desc=stage, unit="fit", file=sys.stderr, leave=False)
+            self.stage = stage
+        self.bar.n = min(i, max(n, 1))
+        self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 def _json_safe(x):
@@ -81,10 +120,13 @@ def main(args: argparse.Namespace) -> int:
         print("note: the model has aero_load but the log has no airspeed column: assuming no airflow",
               file=sys.stderr)
     t0 = time.perf_counter()
+    progress = Progress(enabled=not args.quiet)
     try:
-        d = diagnose(data.t, data.u, data.warp, data.airspeed, mf, opts)
+        d = diagnose(data.t, data.u, data.warp, data.airspeed, mf, opts, progress=progress)
     except ValueError as e:
         raise UserError(f"{args.log}: {e}") from None
+    finally:
+        progress.close()
     elapsed = time.perf_counter() - t0
     rep = d.report
     rep["log"] = {"file": Path(args.log).name, "wing": args.wing, "samples": len(data), "notes": data.notes,

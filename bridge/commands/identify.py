@@ -22,6 +22,8 @@ import numpy as np
 
 from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.errors import UserError
+from warpbridge.model.model_error import ErrorModel, bench_error_model
+from warpbridge.model.modelfile import ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
@@ -91,7 +93,7 @@ class Progress:
 def main(args: argparse.Namespace) -> int:
     from warpbridge.bridge.commands.modelio import save_model
     from warpbridge.model.identify import identify
-    from warpbridge.model.modelfile import FitQuality, ModelFile
+    from warpbridge.model.modelfile import FitQuality
 
     check_outputs({"-o": args.output, "--plot": args.plot}, plots=("--plot",))
     if not 0.05 <= args.heldout <= 0.5:
@@ -119,6 +121,7 @@ def main(args: argparse.Namespace) -> int:
     # z0 stays at rest: the state at the start of this log says nothing about another log's (predict
     # and diagnose estimate it from each log's first samples); the fit record keeps this log's
     mf = ModelFile(params=res.params, fit=fit, meta=meta)
+    mf.model_error = bench_model_error(mf, data)
     save_model(args.output, mf)
     if args.plot:
         from warpbridge.bridge.commands.plots import plot_identification
@@ -139,6 +142,19 @@ def main(args: argparse.Namespace) -> int:
     if res.support is not None and not res.support.supported:
         print(f"warning: {res.support.reason}")
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
+    if mf.model_error is not None:
+        em = mf.model_error
+        print(f"  model-error model for diagnose: bench residual {em.rms_before_deg:.4f} -> {em.rms_after_deg:.4f} deg "
+              f"RMS cross-validated ({', '.join(em.sets) or 'no correction'})")
     if not np.isfinite(res.heldout_rms):
         return 1
     return 0
+
+
+def bench_model_error(mf: ModelFile, data) -> ErrorModel | None:
+    """What the identified model still gets wrong on this (bench) log, learned for ``diagnose``."""
+    try:
+        return bench_error_model(mf.params, mf.effects, data.t, data.u, data.warp)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        print(f"note: no model-error model: {e}", file=sys.stderr)
+        return None

@@ -1,0 +1,180 @@
+"""Leave-one-family-out scoring of the blind diagnosis benchmark's results (pure functions on result dicts).
+
+Each case result holds the truth, the verdict under every decision of the grid
+(``alternatives``) and the check-log gap each of them closes. For a held-out
+family, the decision is the one that scores best on the other families (all
+seeds); the held-out family is then scored with it. The pooled figures add up
+the held-out scores of every fold, so no case is scored with a decision made
+on its own family.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+EFFECTS = ("delay", "rate_limit", "backlash", "friction", "pretension", "sensor_lag", "drift", "aero_load")
+TARGETS = {"single": 0.95, "pairs": 0.80, "false_alarm": 0.05, "min_closed": 0.50, "median_closed": 0.95,
+           "seconds": 30.0}
+
+
+def key(d: dict) -> str:
+    return json.dumps(d, sort_keys=True)
+
+
+def verdict_at(r: dict, dk: str) -> list[str]:
+    return sorted(r["by_decision"][dk]["verdict"])
+
+
+def closed_at(r: dict, dk: str) -> float | None:
+    return r["by_decision"][dk].get("gap_closed")
+
+
+def rates(results: Iterable[dict], dk: str) -> dict:
+    """Exact-naming rates of single effects and pairs, false alarms, gap closed, for decision ``dk``."""
+    results = list(results)
+    singles = [r for r in results if len(r["truth"]) == 1]
+    pairs = [r for r in results if len(r["truth"]) == 2]
+    nones = [r for r in results if not r["truth"]]
+    s_ok = sum(verdict_at(r, dk) == r["truth"] for r in singles)
+    p_ok = sum(verdict_at(r, dk) == r["truth"] for r in pairs)
+    fa = sum(bool(verdict_at(r, dk)) for r in nones)
+    closed = [c for r in singles if (c := closed_at(r, dk)) is not None]
+    return {"singles": len(singles), "single_ok": s_ok, "pairs": len(pairs), "pair_ok": p_ok,
+            "nones": len(nones), "false_alarms": fa,
+            "single_rate": s_ok / len(singles) if singles else math.nan,
+            "pair_rate": p_ok / len(pairs) if pairs else math.nan,
+            "fa_rate": fa / len(nones) if nones else math.nan,
+            "min_closed": float(np.min(closed)) if closed else math.nan,
+            "median_closed": float(np.median(closed)) if closed else math.nan}
+
+
+def score(rt: dict) -> float:
+    """What a decision is chosen by: the mean of the three rates (singles, pairs, no false alarm)."""
+    parts = [rt["single_rate"], rt["pair_rate"], 1.0 - rt["fa_rate"]]
+    parts = [p for p in parts if math.isfinite(p)]
+    return float(np.mean(parts)) if parts else -math.inf
+
+
+def choose(results: list[dict], decisions: list[str], default: str) -> str:
+    """The decision that scores best on ``results``; ties go to the default, then to the first listed."""
+    best, best_s = default, score(rates(results, default))
+    for dk in decisions:
+        s = score(rates(results, dk))
+        if s > best_s + 1e-12:
+            best, best_s = dk, s
+    return best
+
+
+def lofo(results: list[dict], default: str) -> dict:
+    """{family: (decision chosen without it, its results)} for every family in the results."""
+    families = sorted({r["family"] for r in results})
+    decisions = sorted({dk for r in results for dk in r["by_decision"]})
+    out = {}
+    for fam in families:
+        train = [r for r in results if r["family"] != fam]
+        dk = choose(train, decisions, default) if train else default
+        out[fam] = (dk, [r for r in results if r["family"] == fam])
+    return out
+
+
+def _pct(a: int, b: int) -> str:
+    return f"{a}/{b} ({a / b:.0%})" if b else "-"
+
+
+def _ok(val: float, target: float, higher: bool) -> str:
+    if not math.isfinite(val):
+        return ""
+    return "ok" if (val >= target if higher else val <= target) else "MISSED"
+
+
+def fold_table(folds: dict, seeds: list[int]) -> str:
+    """Per held-out family and seed: the decision chosen without that family and the figures it gives."""
+    lines = [f"{'held-out family':<20} {'seed':>4}  {'decision chosen on the others':<32} {'singles exact':>14} "
+             f"{'pairs exact':>13} {'false alarms':>12} {'gap closed min / median':>24}"]
+    for fam, (dk, rs) in folds.items():
+        d = json.loads(dk)
+        dtxt = f"alpha {d['alpha']:g}, share {d['min_share']:g}, gain {d['min_gain']:g}"
+        for seed in [*seeds, None]:
+            sub = [r for r in rs if seed is None or r["seed"] == seed]
+            if not sub:
+                continue
+            rt = rates(sub, dk)
+            gc = (f"{rt['min_closed']:.0%} / {rt['median_closed']:.0%}" if math.isfinite(rt["median_closed"])
+                  else "-")
+            lines.append(f"{fam if seed in (seeds[0], None) else '':<20} {seed if seed is not None else 'all':>4}  "
+                         f"{dtxt if seed == seeds[0] else '':<32} {_pct(rt['single_ok'], rt['singles']):>14} "
+                         f"{_pct(rt['pair_ok'], rt['pairs']):>13} {_pct(rt['false_alarms'], rt['nones']):>12} "
+                         f"{gc:>24}")
+    return "\n".join(lines)
+
+
+def pooled_table(folds: dict, seeds: list[int]) -> str:
+    """Pooled held-out figures (each case scored with the decision of its own fold), per seed, with targets."""
+    lines = [f"{'pooled (each family held out)':<34} " + " ".join(f"{f'seed {s}':>16}" for s in seeds)
+             + f" {'all':>16}   target"]
+
+    def pooled(seed):
+        tot = {"singles": 0, "single_ok": 0, "pairs": 0, "pair_ok": 0, "nones": 0, "false_alarms": 0}
+        closed = []
+        for dk, rs in folds.values():
+            sub = [r for r in rs if seed is None or r["seed"] == seed]
+            rt = rates(sub, dk)
+            for k in tot:
+                tot[k] += rt[k]
+            closed += [c for r in sub if len(r["truth"]) == 1 and (c := closed_at(r, dk)) is not None]
+        return tot, closed
+
+    cols = [pooled(s) for s in [*seeds, None]]
+    rows = [
+        ("single effects named exactly", lambda t, c: _pct(t["single_ok"], t["singles"]),
+         f">= {TARGETS['single']:.0%}"),
+        ("pairs named exactly", lambda t, c: _pct(t["pair_ok"], t["pairs"]), f">= {TARGETS['pairs']:.0%}"),
+        ("false alarms (no effect)", lambda t, c: _pct(t["false_alarms"], t["nones"]),
+         f"<= {TARGETS['false_alarm']:.0%}"),
+        ("check-log gap closed, min", lambda t, c: f"{min(c):.0%}" if c else "-", f">= {TARGETS['min_closed']:.0%}"),
+        ("check-log gap closed, median", lambda t, c: f"{np.median(c):.0%}" if c else "-",
+         f">= {TARGETS['median_closed']:.0%}"),
+    ]
+    for name, fn, target in rows:
+        lines.append(f"{name:<34} " + " ".join(f"{fn(t, c):>16}" for t, c in cols) + f"   {target}")
+    return "\n".join(lines)
+
+
+def effect_table(results: list[dict], folds: dict) -> str:
+    """Per effect (single-effect cases, each with its fold's decision): named exactly, contained, gap closed."""
+    lines = [f"{'effect':<12} {'named exactly':>14} {'contained':>10} {'gap closed min / median':>24}   "
+             "named instead"]
+    dk_of = {fam: dk for fam, (dk, _) in folds.items()}
+    for n in EFFECTS:
+        rs = [r for r in results if r["truth"] == [n]]
+        if not rs:
+            continue
+        ex = sum(verdict_at(r, dk_of[r["family"]]) == [n] for r in rs)
+        inc = sum(n in verdict_at(r, dk_of[r["family"]]) for r in rs)
+        gc = [c for r in rs if (c := closed_at(r, dk_of[r["family"]])) is not None]
+        wrong: dict[str, int] = {}
+        for r in rs:
+            v = verdict_at(r, dk_of[r["family"]])
+            if v != [n]:
+                k = "+".join(v) or "[]"
+                wrong[k] = wrong.get(k, 0) + 1
+        gct = f"{min(gc):.0%} / {np.median(gc):.0%}" if gc else "-"
+        lines.append(f"{n:<12} {ex:>8}/{len(rs):<5} {inc:>6}/{len(rs):<3} {gct:>24}   "
+                     + ", ".join(f"{k} x{v}" for k, v in sorted(wrong.items(), key=lambda kv: -kv[1])))
+    return "\n".join(lines)
+
+
+def misses(results: list[dict], folds: dict) -> str:
+    dk_of = {fam: dk for fam, (dk, _) in folds.items()}
+    lines = []
+    for r in results:
+        v = verdict_at(r, dk_of[r["family"]])
+        if v != r["truth"]:
+            mags = ", ".join(f"{k} {m:.1f}x noise" for k, m in r["magnitude_x_noise"].items())
+            lines.append(f"  {r['plant']:<28} truth {r['truth'] or '[]'} ({mags or 'none'}; bench misfit "
+                         f"{r['bench_misfit_deg']:.3f} deg, effect RMS {r['effect_rms_deg']:.3f} deg) -> {v or '[]'}")
+    return "\n".join(lines) if lines else "  none"

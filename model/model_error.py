@@ -1,0 +1,366 @@
+"""The model's own error on the bench, learned from the bench residual (the model-error model).
+
+A nominal model identified on a bench log rarely fits the wing exactly: the
+hysteresis of a real sheath is not quite Bouc-Wen, the servo and the sensor
+have dynamics of their own, the link a latency. That misfit has structure,
+and the structure repeats in the field. ``ErrorModel`` describes it as a
+linear combination of features of where the hysteresis is::
+
+    r = w_meas - w_model ~ Phi(t, x, w_model) theta
+
+- level: Legendre polynomials P0..P3 of the model's warp, normalised to the
+  bench range (clipped a little beyond it);
+- branch: the direction of the tendon travel s = +-1 times P0..P2 (a loop of
+  the wrong width or a branch of the wrong curvature);
+- transition: s exp(-d / l) for four lengths l, d the travel since the last
+  reversal (the shape of the turn after a reversal);
+- rate: the model's warp rate and its product with the level (latency, servo
+  and sensor dynamics the rate-independent model cannot express);
+- memory: the turn measured against the previous leg, s exp(-(d / a) / l) for
+  three l, and s a, s a^2, a the travel of the previous leg over the span
+  (minor loops that the model closes differently from the wing).
+
+Nested feature sets and a ridge penalty are chosen by blocked cross-validation
+on the bench log, so noise is not learned as structure; the cross-validated
+RMS after the correction is what the model is still known to get wrong.
+``diagnose`` adds the correction to the model's core output, so that an
+effect is named by what changed between bench and field, not by what the
+model never captured. Units: t s, x mm (tendon travel into the core), w deg.
+No I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from warpbridge.model._jit import njit
+
+FORMAT = "warpbridge-model-error/1"
+FEATURE_SETS = ("level", "branch", "transition", "rate", "memory")  # nested: each adds columns to the previous
+SET_COLUMNS = {"level": 4, "branch": 3, "transition": 4, "rate": 2, "memory": 5}
+TRANSITION_LENGTHS = (0.01, 0.03, 0.1, 0.3)  # of the tendon span
+MEMORY_LENGTHS = (0.05, 0.2, 0.6)  # of the previous leg
+DEADBAND = 0.005  # of the tendon span: smaller wiggles are not reversals
+RIDGES = (1e-6, 1e-4, 1e-2, 1.0)  # penalty relative to the mean diagonal of the normal equations
+FOLDS = 5
+LEVEL_CLIP = 1.25
+RATE_SMOOTH_S = 0.01
+
+
+@njit(cache=True)
+def travel_since_reversal(x, eps):
+    """(direction +-1, travel since the last reversal, travel of the leg before it) per sample;
+    reversals need ``eps`` of travel back."""
+    n = x.shape[0]
+    s = np.empty(n)
+    d = np.empty(n)
+    a = np.empty(n)
+    direction = 1.0
+    ext = x[0]
+    rev = x[0]
+    prev = 0.0
+    started = False
+    for k in range(n):
+        v = x[k]
+        if not started:
+            if abs(v - x[0]) > eps:
+                direction = 1.0 if v > x[0] else -1.0
+                started = True
+                ext = v
+        elif direction > 0:
+            if v > ext:
+                ext = v
+            elif ext - v > eps:
+                prev = ext - rev
+                direction, rev, ext = -1.0, ext, v
+        else:
+            if v < ext:
+                ext = v
+            elif v - ext > eps:
+                prev = rev - ext
+                direction, rev, ext = 1.0, ext, v
+        s[k] = direction
+        d[k] = abs(v - rev)
+        a[k] = prev
+    return s, d, a
+
+
+@njit(cache=True)
+def _correction(x, w, v, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
+    n = x.shape[0]
+    out = np.empty(n)
+    eps = DEADBAND * x_span
+    direction = 1.0
+    ext = x[0]
+    rev = x[0]
+    prev = 0.0
+    started = False
+    for k in range(n):
+        xv = x[k]
+        if not started:
+            if abs(xv - x[0]) > eps:
+                direction = 1.0 if xv > x[0] else -1.0
+                started = True
+                ext = xv
+        elif direction > 0:
+            if xv > ext:
+                ext = xv
+            elif ext - xv > eps:
+                prev = ext - rev
+                direction, rev, ext = -1.0, ext, xv
+        else:
+            if xv < ext:
+                ext = xv
+            elif xv - ext > eps:
+                prev = rev - ext
+                direction, rev, ext = 1.0, ext, xv
+        s = direction
+        d = abs(xv - rev)
+        h = (w[k] - w_center) / w_scale
+        h = min(max(h, -LEVEL_CLIP), LEVEL_CLIP)
+        p1 = h
+        p2 = 1.5 * h * h - 0.5
+        p3 = 2.5 * h * h * h - 1.5 * h
+        acc = theta[0] + theta[1] * p1 + theta[2] * p2 + theta[3] * p3
+        j = 4
+        if nsets >= 2:
+            acc += s * (theta[j] + theta[j + 1] * p1 + theta[j + 2] * p2)
+            j += 3
+        if nsets >= 3:
+            for i in range(trans_l.shape[0]):
+                acc += theta[j] * s * math.exp(-d / (trans_l[i] * x_span))
+                j += 1
+        if nsets >= 4:
+            acc += theta[j] * v[k] + theta[j + 1] * v[k] * p1
+            j += 2
+        if nsets >= 5:
+            leg = min(prev / x_span, 1.0)
+            rel = min(d / max(prev, eps), 2.0)
+            for i in range(mem_l.shape[0]):
+                acc += theta[j] * s * math.exp(-rel / mem_l[i])
+                j += 1
+            acc += theta[j] * s * leg + theta[j + 1] * s * leg * leg
+            j += 2
+        out[k] = acc
+    return out
+
+
+def _smooth_rate(t: np.ndarray, w: np.ndarray) -> np.ndarray:
+    r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    k = max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9))))
+    if k > 1:
+        r = np.convolve(r, np.ones(k) / k, mode="same")
+    return r
+
+
+@dataclass
+class ErrorModel:
+    """A fitted model-error model: feature normalisation, chosen feature sets, coefficients and what it
+    measured on the bench (RMS in deg: cross-validated before and after the correction, noise)."""
+
+    w_center: float
+    w_scale: float
+    x_span: float
+    rate_scale: float
+    sets: tuple[str, ...]
+    theta: np.ndarray
+    ridge: float = 0.0
+    rms_before_deg: float = math.nan
+    rms_after_deg: float = math.nan
+    noise_deg: float = math.nan
+    samples: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def known_error_deg(self) -> float:
+        """What the corrected model still gets wrong beyond noise on the bench (cross-validated)."""
+        if not (math.isfinite(self.rms_after_deg) and math.isfinite(self.noise_deg)):
+            return math.nan
+        return math.sqrt(max(self.rms_after_deg ** 2 - self.noise_deg ** 2, 0.0))
+
+    def features(self, t, x, w) -> np.ndarray:
+        return design(t, x, w, self.w_center, self.w_scale, self.x_span, self.rate_scale, self.sets)
+
+    def correction(self, t, x, w) -> np.ndarray:
+        """Warp (deg) to add to the model's core output along input x and model warp w (one compiled pass,
+        the same as ``features(t, x, w) @ theta``)."""
+        w = np.ascontiguousarray(w, dtype=np.float64)
+        if self.theta.size == 0:
+            return np.zeros(w.size)
+        nsets = len(self.sets)
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
+        return _correction(np.ascontiguousarray(x, dtype=np.float64), w, v, self.theta, self.w_center,
+                           self.w_scale, self.x_span, nsets, np.array(TRANSITION_LENGTHS),
+                           np.array(MEMORY_LENGTHS))
+
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "w_center": self.w_center, "w_scale": self.w_scale, "x_span": self.x_span,
+                "rate_scale": self.rate_scale, "sets": list(self.sets), "theta": [float(v) for v in self.theta],
+                "ridge": self.ridge, "bench_rms_before_deg": _num(self.rms_before_deg),
+                "bench_rms_after_deg": _num(self.rms_after_deg), "noise_deg": _num(self.noise_deg),
+                "samples": self.samples, **self.extra}
+
+    @classmethod
+    def from_dict(cls, d) -> ErrorModel:
+        if not isinstance(d, dict):
+            raise ValueError("model_error must be an object")
+        if d.get("format") != FORMAT:
+            raise ValueError(f"unsupported model_error format {d.get('format')!r} (this warpbridge reads {FORMAT!r})")
+        try:
+            sets = tuple(str(s) for s in d["sets"])
+            bad = [s for s in sets if s not in FEATURE_SETS]
+            if bad or list(sets) != list(FEATURE_SETS[:len(sets)]):
+                raise ValueError(f"model_error feature sets must be a prefix of {', '.join(FEATURE_SETS)}")
+            theta = np.asarray([float(v) for v in d["theta"]], dtype=np.float64)
+            if theta.size != sum(SET_COLUMNS[s] for s in sets):
+                raise ValueError("model_error theta does not match its feature sets")
+            scales = [float(d[k]) for k in ("w_scale", "x_span", "rate_scale")]
+            if not all(math.isfinite(v) and v > 0 for v in scales) or not np.all(np.isfinite(theta)):
+                raise ValueError("model_error scales must be positive and its coefficients finite")
+            known = {"format", "w_center", "w_scale", "x_span", "rate_scale", "sets", "theta", "ridge",
+                     "bench_rms_before_deg", "bench_rms_after_deg", "noise_deg", "samples"}
+            return cls(w_center=float(d["w_center"]), w_scale=scales[0], x_span=scales[1], rate_scale=scales[2],
+                       sets=sets, theta=theta, ridge=float(d.get("ridge", 0.0)),
+                       rms_before_deg=_opt(d.get("bench_rms_before_deg")),
+                       rms_after_deg=_opt(d.get("bench_rms_after_deg")), noise_deg=_opt(d.get("noise_deg")),
+                       samples=int(d.get("samples", 0)), extra={k: v for k, v in d.items() if k not in known})
+        except KeyError as e:
+            raise ValueError(f"model_error lacks {e.args[0]!r}") from None
+        except (TypeError, ValueError) as e:
+            if "model_error" in str(e):
+                raise
+            raise ValueError(f"bad model_error: {e}") from None
+
+
+def _num(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def _opt(v) -> float:
+    return math.nan if v is None else float(v)
+
+
+def design(t, x, w, w_center: float, w_scale: float, x_span: float, rate_scale: float,
+           sets: tuple[str, ...]) -> np.ndarray:
+    """Feature matrix (n x columns of ``sets``) along input x (mm) and model warp w (deg) at times t (s)."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    h = np.clip((w - w_center) / w_scale, -LEVEL_CLIP, LEVEL_CLIP)
+    p1, p2, p3 = h, 1.5 * h * h - 0.5, 2.5 * h ** 3 - 1.5 * h
+    cols: list[np.ndarray] = []
+    s, d, a = travel_since_reversal(x, DEADBAND * x_span) if len(sets) > 1 else (None, None, None)
+    for name in sets:
+        if name == "level":
+            cols += [np.ones_like(h), p1, p2, p3]
+        elif name == "branch":
+            cols += [s, s * p1, s * p2]
+        elif name == "transition":
+            cols += [s * np.exp(-d / (lam * x_span)) for lam in TRANSITION_LENGTHS]
+        elif name == "rate":
+            v = _smooth_rate(t, w) / rate_scale
+            cols += [v, v * p1]
+        elif name == "memory":
+            leg = np.minimum(a / x_span, 1.0)
+            rel = np.minimum(d / np.maximum(a, DEADBAND * x_span), 2.0)
+            cols += [s * np.exp(-rel / lam) for lam in MEMORY_LENGTHS] + [s * leg, s * leg * leg]
+    if not cols:
+        return np.zeros((t.size, 0))
+    return np.column_stack(cols)
+
+
+def _ridge_solve(A: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
+    G = A.T @ A
+    scale = float(np.trace(G)) / max(G.shape[0], 1)
+    G = G + ridge * max(scale, 1e-300) * np.eye(G.shape[0])
+    try:
+        return np.linalg.solve(G, A.T @ y)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, y, rcond=None)[0]
+
+
+def fit_error_model(t, x, w_model, w_meas, noise: float, start: int = 0) -> ErrorModel:
+    """Learn the model-error model from a bench log: residual w_meas - w_model along input x.
+
+    Samples before ``start`` (the warm-up, where the initial state is uncertain) are not used. The feature
+    sets (nested) and the ridge penalty minimise the error on ``FOLDS`` contiguous held-out folds; the
+    empty model (no correction) competes too."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    w_model = np.ascontiguousarray(w_model, dtype=np.float64)
+    r = np.ascontiguousarray(w_meas, dtype=np.float64) - w_model
+    n = t.size
+    use = np.zeros(n, bool)
+    use[start:] = True
+    use &= np.isfinite(r) & np.isfinite(w_model)
+    wl, wh = np.percentile(w_model[use], [1, 99]) if use.any() else (0.0, 1.0)
+    w_center, w_scale = 0.5 * (wl + wh), max(0.5 * (wh - wl), 1e-6)
+    xl, xh = np.percentile(x[use], [0.5, 99.5]) if use.any() else (0.0, 1.0)
+    x_span = max(float(xh - xl), 1e-9)
+    rate = _smooth_rate(t, w_model)
+    rate_scale = max(float(np.sqrt(np.mean(rate[use] ** 2))) if use.any() else 1.0, 1e-9)
+    full = design(t, x, w_model, w_center, w_scale, x_span, rate_scale, FEATURE_SETS)
+    idx = np.flatnonzero(use)
+    folds = np.array_split(idx, FOLDS)
+    before = float(np.mean(r[idx] ** 2)) if idx.size else math.nan
+    best = ((), 0.0, before)  # (sets, ridge, cv mse)
+    if idx.size >= 20 * full.shape[1]:
+        for k in range(1, len(FEATURE_SETS) + 1):
+            ncol = sum(SET_COLUMNS[s] for s in FEATURE_SETS[:k])
+            A = full[:, :ncol]
+            for ridge in RIDGES:
+                sse = 0.0
+                for f in folds:
+                    train = np.setdiff1d(idx, _guarded(f, n, t))
+                    th = _ridge_solve(A[train], r[train], ridge)
+                    e = r[f] - A[f] @ th
+                    sse += float(np.dot(e, e))
+                cv = sse / idx.size
+                if cv < best[2]:
+                    best = (FEATURE_SETS[:k], ridge, cv)
+    sets, ridge, cv = best
+    ncol = sum(SET_COLUMNS[s] for s in sets)
+    theta = _ridge_solve(full[idx, :ncol], r[idx], ridge) if ncol else np.zeros(0)
+    return ErrorModel(w_center=float(w_center), w_scale=float(w_scale), x_span=x_span, rate_scale=rate_scale,
+                      sets=tuple(sets), theta=np.asarray(theta, dtype=np.float64), ridge=float(ridge),
+                      rms_before_deg=math.sqrt(before) if math.isfinite(before) else math.nan,
+                      rms_after_deg=math.sqrt(cv) if math.isfinite(cv) else math.nan,
+                      noise_deg=float(noise), samples=int(idx.size))
+
+
+def _guarded(fold: np.ndarray, n: int, t: np.ndarray, guard_s: float = 0.5) -> np.ndarray:
+    """A fold's samples plus a guard band on either side (left out of training: the residual is correlated)."""
+    if fold.size == 0:
+        return fold
+    lo = int(np.searchsorted(t, t[fold[0]] - guard_s))
+    hi = int(np.searchsorted(t, t[fold[-1]] + guard_s, side="right"))
+    return np.arange(lo, min(hi, n))
+
+
+def bench_error_model(params, effects, t, u, w) -> ErrorModel:
+    """The model-error model of a nominal model (Bouc-Wen ``params`` with ``effects``) on its bench log.
+
+    The model is free-run on the logged input from the initial state its opening stretch gives; samples up
+    to the first reversal (capped at a tenth of the log) are left out, as in identification."""
+    from warpbridge.model.boucwen import forward
+    from warpbridge.model.effects import apply_input_effects, apply_output_effects, friction_core
+    from warpbridge.model.identify import noise_floor, warmup_end
+    from warpbridge.model.initial_state import estimate_z0
+
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    p = friction_core(params, effects.friction_scale)
+    x = apply_input_effects(effects, t, u)
+    z0 = estimate_z0(p, x, w)
+    w_core = forward(p, x, z0=z0)[0]
+    _, w_pred = apply_output_effects(effects, t, w_core)
+    # fitted on the core's trajectory: the correction is added there, before any output effect
+    return fit_error_model(t, x, w_core, w_meas=w - (w_pred - w_core), noise=noise_floor(w),
+                           start=warmup_end(u))
+

@@ -1,0 +1,133 @@
+"""The model-error model: reversal bookkeeping by hand, recovery of a planted correction, no structure learned
+from noise, a model file that carries it (and one that does not), and a bench lag learned as structure."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from warpbridge.model.boucwen import BoucWenParams, inverse
+from warpbridge.model.effects import Effects
+from warpbridge.model.excitation import filtered_random
+from warpbridge.model.model_error import (
+    FEATURE_SETS,
+    ErrorModel,
+    bench_error_model,
+    design,
+    fit_error_model,
+    travel_since_reversal,
+)
+from warpbridge.model.modelfile import ModelFile
+from warpbridge.model.plant import Plant
+
+P = BoucWenParams.paper()
+
+
+def test_travel_since_reversal_on_a_triangle_by_hand():
+    # 0 -> 4 -> 1 -> 3 in steps of 1 mm (deadband 0.5 mm)
+    x = np.array([0.0, 1, 2, 3, 4, 3, 2, 1, 2, 3])
+    s, d, a = travel_since_reversal(x, 0.5)
+    assert list(s) == [1, 1, 1, 1, 1, -1, -1, -1, 1, 1]
+    # before the first reversal the travel counts from the start
+    assert list(d) == [0, 1, 2, 3, 4, 1, 2, 3, 1, 2]
+    # the leg before the current one: none, then 0 -> 4, then 4 -> 1
+    assert list(a) == [0, 0, 0, 0, 0, 4, 4, 4, 3, 3]
+
+
+def test_a_wiggle_inside_the_deadband_is_not_a_reversal():
+    x = np.array([0.0, 1.0, 2.0, 1.9, 2.5, 3.0])
+    s, d, _ = travel_since_reversal(x, 0.5)
+    assert np.all(s == 1) and d[-1] == 3.0
+
+
+def _log(seconds=30.0, fs=200.0, seed=0):
+    t = np.arange(int(seconds * fs)) / fs
+    w_ref = filtered_random(t, 1.0, 4.5, 7.0, seed=seed)
+    u, _ = inverse(P, w_ref)
+    return t, u, w_ref
+
+
+def test_a_planted_correction_is_recovered_and_its_known_error_is_small():
+    t, u, w = _log()
+    span = float(np.ptp(np.percentile(u, [0.5, 99.5])))
+    X = design(t, u, w, 7.0, 4.5, span, 30.0, FEATURE_SETS[:3])
+    rng = np.random.default_rng(1)
+    theta = np.zeros(X.shape[1])
+    theta[[1, 4, 7]] = [0.08, 0.05, -0.06]  # a level slope, a branch offset, a short transition
+    noise = 0.02
+    w_meas = w + X @ theta + noise * rng.standard_normal(t.size)
+    em = fit_error_model(t, u, w, w_meas, noise=noise)
+    assert "transition" in em.sets
+    planted = X @ theta
+    got = em.correction(t, u, w)
+    assert np.sqrt(np.mean((got - planted) ** 2)) < 0.2 * np.sqrt(np.mean(planted ** 2))
+    assert em.rms_before_deg > 2 * noise
+    assert em.rms_after_deg == pytest.approx(noise, rel=0.1)
+    assert em.known_error_deg < 0.5 * noise
+
+
+def test_noise_alone_teaches_it_nothing():
+    t, u, w = _log(seed=2)
+    noise = 0.03
+    w_meas = w + noise * np.random.default_rng(3).standard_normal(t.size)
+    em = fit_error_model(t, u, w, w_meas, noise=noise)
+    c = em.correction(t, u, w)
+    # whatever it kept is far below the noise, and its cross-validated error is the noise
+    assert np.sqrt(np.mean(c ** 2)) < 0.15 * noise
+    assert em.rms_after_deg == pytest.approx(noise, rel=0.05)
+
+
+def test_a_bench_lag_the_model_lacks_is_learned_as_structure():
+    t, u, _ = _log(seconds=40.0, fs=500.0, seed=4)
+    _, w = Plant(P, Effects(sensor_tau_s=0.02)).simulate(t, u)
+    noise = 0.03
+    w = w + noise * np.random.default_rng(5).standard_normal(t.size)
+    em = bench_error_model(P, Effects(), t, u, w)
+    assert "rate" in em.sets
+    # the lag costs several times the noise; the correction takes most of it away
+    assert em.rms_before_deg > 3 * noise
+    assert em.known_error_deg < 0.35 * math.sqrt(em.rms_before_deg ** 2 - noise ** 2)
+
+
+def test_model_file_round_trip_and_files_without_the_field():
+    t, u, w = _log(seed=6)
+    em = fit_error_model(t, u, w, w + 0.05 * np.sin(t), noise=0.01)
+    mf = ModelFile(params=P, model_error=em)
+    d = mf.to_dict()
+    assert d["format"] == "warpbridge-model/1"
+    back = ModelFile.from_dict(d)
+    assert back.model_error is not None
+    np.testing.assert_array_equal(back.model_error.theta, em.theta)
+    np.testing.assert_allclose(back.model_error.correction(t, u, w), em.correction(t, u, w), rtol=0, atol=1e-12)
+    old = {k: v for k, v in d.items() if k != "model_error"}
+    assert ModelFile.from_dict(old).model_error is None
+    assert "model_error" not in ModelFile(params=P).to_dict()
+
+
+@pytest.mark.parametrize("change, needle", [
+    ({"format": "other/1"}, "unsupported model_error format"),
+    ({"sets": ["rate"]}, "prefix"),
+    ({"theta": [1.0]}, "does not match"),
+    ({"w_scale": -1.0}, "positive"),
+])
+def test_a_damaged_model_error_field_is_refused_with_a_reason(change, needle):
+    t, u, w = _log(seed=7)
+    d = fit_error_model(t, u, w, w + 0.05 * np.sin(t), noise=0.01).to_dict()
+    d.update(change)
+    with pytest.raises(ValueError, match=needle):
+        ErrorModel.from_dict(d)
+    with pytest.raises(ValueError, match=needle):
+        ModelFile.from_dict({"format": "warpbridge-model/1", "params": P.to_dict(), "model_error": d})
+
+
+def test_the_compiled_correction_is_the_feature_matrix_times_theta():
+    t, u, w = _log(seed=8)
+    rng = np.random.default_rng(9)
+    span = float(np.ptp(u))
+    for k in range(1, len(FEATURE_SETS) + 1):
+        sets = FEATURE_SETS[:k]
+        X = design(t, u, w, 6.0, 4.0, span, 25.0, sets)
+        em = ErrorModel(6.0, 4.0, span, 25.0, sets, rng.standard_normal(X.shape[1]))
+        np.testing.assert_allclose(em.correction(t, u, w), X @ em.theta, rtol=0, atol=1e-10)
