@@ -86,13 +86,31 @@ def centre_line(config: Config) -> tuple[float, float, float] | None:
     try:
         doc = json.loads(config.model_file.read_text(encoding="utf-8"))
         a1, a2, a3 = (float(doc["params"][k]) for k in ("a1", "a2", "a3"))
-        pt = (doc.get("effects") or {}).get("pretension") or {}
+        effects = doc.get("effects") or {}
+        pt = effects.get("pretension") or {}
         off, gain = float(pt.get("pretension_offset_mm", 0.0)), float(pt.get("pretension_gain", 1.0))
-    except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError):
+        scale = float((effects.get("friction") or {}).get("friction_scale", 1.0))
+        if scale != 1.0:
+            a3 += _friction_shift(doc["params"], scale)
+    except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError, ZeroDivisionError,
+            OverflowError):
         return None
     if not all(math.isfinite(x) for x in (a1, a2, a3, off, gain)) or not gain > 0:
         return None
     return a1 / gain, a2 / gain, a3 / gain + off
+
+
+def _friction_shift(params: dict, scale: float) -> float:
+    """The move of a3 that keeps the middle of the hysteresis band in place when the friction change
+    ``scale`` widens the loop (``model.effects.friction_core``, on positive warp), in plain Python."""
+    az, A, n = float(params["az"]), float(params["A"]), float(params["n"])
+    b1, b2, b3, b4, b5, b6 = (float(x) for x in params["b"])
+    psi_hi = b1 + b2 + b3 + b4 + b5 + b6  # loading, z > 0
+    psi_lo = b1 - b2 - b3 - b4 - b5 + b6  # unloading, z < 0
+    if not (psi_hi > 0 and psi_lo > 0 and A > 0):
+        return 0.0
+    mid = 0.5 * ((A / psi_hi) ** (1.0 / n) - (A / psi_lo) ** (1.0 / n))
+    return az * (1.0 - scale) * mid
 
 
 def servo_calibration(wing: WingConfig) -> ServoCalibration:

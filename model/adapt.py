@@ -37,13 +37,14 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from warpbridge.model import _jit
 from warpbridge.model import kernels as K
 from warpbridge.model.boucwen import BoucWenParams, rest_warp
+from warpbridge.model.effects import fold_rigging
 
 SHIFT_MM = 0.05  # input shift of the offset shadow model
 SCALE = 0.01  # relative input scaling of the gain shadow model
@@ -284,12 +285,6 @@ class PretensionEstimator:
 
 
 def fold_pretension(params: BoucWenParams, offset: float, gain: float, az_scale: float = 1.0) -> BoucWenParams:
-    """The Bouc-Wen parameters of the rigged wing ``u = offset + f(w) / gain`` (hysteresis width scaled).
-
-    Exact: the pre-tension effect u_eff = gain (u - offset) in front of the model
-    u_eff = a1 w^2 + a2 w + a3 + az z is the model with a_i / gain, a3 / gain + offset
-    and az * az_scale / gain; z's dynamics do not depend on u."""
-    if not (gain > 0 and az_scale > 0 and math.isfinite(offset)):
-        raise ValueError("gain and az_scale must be positive, offset finite")
-    return replace(params, a1=params.a1 / gain, a2=params.a2 / gain, a3=params.a3 / gain + offset,
-                   az=params.az * az_scale / gain)
+    """The Bouc-Wen parameters of the rigged wing ``u = offset + f(w) / gain`` (hysteresis width scaled by
+    ``az_scale`` about its middle); see ``model.effects.fold_rigging``."""
+    return fold_rigging(params, offset, gain, az_scale)

@@ -18,10 +18,8 @@ operators, so an augmented model and its compensator cancel exactly.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 from warpbridge.model.boucwen import BoucWenParams, Stepper
-from warpbridge.model.effects import Effects, dynamic_pressure_kpa, friction_core
+from warpbridge.model.effects import Effects, dynamic_pressure_kpa, fold_rigging
 from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
@@ -31,11 +29,7 @@ INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")
 def folded_params(params: BoucWenParams, effects: Effects) -> BoucWenParams:
     """Bouc-Wen parameters with friction and pre-tension folded in exactly: the rigged wing's model
     u = offset + f(w) / gain with the loop scaled about its middle by the friction factor."""
-    g, off, s = effects.pretension_gain, effects.pretension_offset_mm, effects.friction_scale
-    if g == 1.0 and off == 0.0 and s == 1.0:
-        return params
-    p = friction_core(params, s)
-    return replace(p, a1=p.a1 / g, a2=p.a2 / g, a3=p.a3 / g + off, az=p.az / g)
+    return fold_rigging(params, effects.pretension_offset_mm, effects.pretension_gain, effects.friction_scale)
 
 
 def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float:

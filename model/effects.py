@@ -159,6 +159,19 @@ def friction_core(params, scale: float):
     return replace(params, az=params.az * scale, a3=params.a3 + params.az * (1.0 - scale) * mid)
 
 
+def fold_rigging(params, offset: float, gain: float, friction_scale: float = 1.0):
+    """The Bouc-Wen parameters of the rigged wing ``u = offset + f(w) / gain`` with the friction change
+    folded in as the plant applies it (``friction_core``). Exact: the pre-tension effect
+    u_eff = gain (u - offset) in front of u_eff = a1 w^2 + a2 w + a3 + az z is the model with a_i / gain,
+    a3 / gain + offset and az / gain; z's dynamics do not depend on u."""
+    if not (gain > 0 and friction_scale > 0 and math.isfinite(offset)):
+        raise ValueError("gain and friction scale must be positive, offset finite")
+    if gain == 1.0 and offset == 0.0 and friction_scale == 1.0:
+        return params
+    p = friction_core(params, friction_scale)
+    return replace(p, a1=p.a1 / gain, a2=p.a2 / gain, a3=p.a3 / gain + offset, az=p.az / gain)
+
+
 def dynamic_pressure_kpa(airspeed) -> np.ndarray:
     """q = rho V^2 / 2 in kPa for airspeed in m/s (NaN airspeed counts as 0)."""
     v = np.nan_to_num(np.asarray(airspeed, dtype=np.float64), nan=0.0)
