@@ -169,6 +169,22 @@ def test_step_equals_simulate_and_never_nan():
         assert np.all(np.isfinite(w))
         np.testing.assert_array_equal(w, ws)
         assert np.all(a.tensions >= 0.0)
+        assert a.fallbacks == 0
+
+
+def test_the_solution_does_not_depend_on_where_the_search_starts():
+    # the solver starts each search from the last sample's slip zones; starting from scratch must agree
+    rng = np.random.default_rng(8)
+    for _ in range(4):
+        p = random_sheath(rng)
+        lo, hi = SheathPlant(p).travel_range(10.0)
+        u = lo + (hi - lo) * (0.5 + 0.5 * np.sin(np.linspace(0, 9, 3000)) * np.sin(np.linspace(0, 2.3, 3000)))
+        load = 0.4 * np.sin(np.linspace(0, 13, 3000)) + rng.normal(0, 0.02, 3000)
+        hinted = SheathPlant(p)
+        scratch = SheathPlant(p)
+        scratch._use_hint = False
+        np.testing.assert_allclose(hinted.simulate(u, load), scratch.simulate(u, load), atol=1e-10)
+        assert hinted.fallbacks == 0 and scratch.fallbacks == 0
 
 
 def test_return_point_memory_and_wiping_out():
