@@ -418,6 +418,16 @@ def _advance(pos, tmp, tmp2, mult, st, x0, load, p, use_hint):
 
 
 @njit(cache=True)
+def _run1(pos, st, p, x0, load, use_hint) -> float:
+    """One sample (the per-sample path, without array arguments); returns the warp (deg)."""
+    tmp = np.empty_like(pos)
+    tmp2 = np.empty_like(pos)
+    mult = np.empty_like(pos)
+    _advance(pos, tmp, tmp2, mult, st, x0, load, p, use_hint)
+    return (pos[int(p[K_N]) + 1] + p[K_XWREST]) / p[K_MMDEG]
+
+
+@njit(cache=True)
 def _run(pos, st, p, x0, load, out, use_hint):
     """Advance the state through samples x0[i] (servo end from rest, mm) and load[i] (N); warp (deg) into out."""
     n = int(p[K_N])
@@ -513,6 +523,15 @@ class SheathPlant:
         self._st[:] = 0.0
         self._warp = self.rest_warp
 
+    def copy(self) -> SheathPlant:
+        """An independent plant in the same state (to branch a simulation)."""
+        other = SheathPlant(self.params, self.u0)
+        other._pos[:] = self._pos
+        other._st[:] = self._st
+        other._warp = self._warp
+        other._use_hint = self._use_hint
+        return other
+
     @property
     def rest_warp(self) -> float:
         """Warp (deg) at rest: the pre-tension's own pull on the wing."""
@@ -542,8 +561,11 @@ class SheathPlant:
 
     def step(self, u: float, load_n: float = 0.0) -> float:
         """One sample: tendon travel u (mm) and load (N) -> warp (deg)."""
-        w = self.simulate(np.array([u], dtype=np.float64), load_n)
-        return float(w[0])
+        u, load_n = float(u), float(load_n)
+        if not (math.isfinite(u) and math.isfinite(load_n)):
+            raise ValueError("tendon travel and load must be finite")
+        self._warp = float(_run1(self._pos, self._st, self._p, u - self.u0, load_n, self._use_hint))
+        return self._warp
 
     def simulate(self, u, load_n=0.0) -> np.ndarray:
         """Warp (deg) for each sample of u (mm), with the load (N, scalar or array); continues from the state."""
