@@ -353,6 +353,8 @@ def load_config(path: str | Path, loads: Callable[[str], dict] = tomllib.loads) 
         text = p.read_text(encoding="utf-8")
     except OSError as e:
         raise UserError(f"cannot read config {p}: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise UserError(f"{p}: not a TOML text file (byte {e.start} is not UTF-8)") from None
     try:
         data = loads(text)
     except tomllib.TOMLDecodeError as e:

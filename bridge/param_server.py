@@ -2,32 +2,49 @@
 
 Ground stations (QGroundControl, Mission Planner, MAVProxy, MAVSDK) list, read and
 set the ``ParamStore`` through PARAM_REQUEST_LIST, PARAM_REQUEST_READ and
-PARAM_SET; every answer is a PARAM_VALUE (MAV_PARAM_TYPE_REAL32 for all values,
-integers included, with param_count and param_index), broadcast as the protocol
-asks. Addressing follows PX4's mavlink_parameters and ArduPilot's router: a
-request counts when target_system is ours (or 0 for list/read) and
-target_component is 191 or 0 (MAV_COMP_ID_ALL). A set that is refused (NaN,
-inf, out of range, not a whole number, a param_type other than REAL32, sender not
-in the allow-list) is answered with the unchanged value plus a STATUSTEXT saying
-why, so a GCS does not retry forever; a set of a name we do not have gets the
-STATUSTEXT only (as PX4 does; there is no index to answer with), and a broadcast
-one nothing, as it is the other components' to answer. Sets addressed to another
-system or component are not ours: no answer. Replies go out at most
-``send_rate_hz`` per second (token bucket) so a slow telemetry radio is not
-flooded; single reads and set echoes go before the rest of a list. Refusal
-STATUSTEXTs are limited too (burst 5, then one a second): a flood of bad sets is
-counted (``refused``, ``texts_dropped``), not echoed onto the radio.
+PARAM_SET; every answer is a PARAM_VALUE with param_count and param_index,
+broadcast as the protocol asks. The same parameters can be downloaded as
+ArduPilot's ``@PARAM/param.pck`` over MAVLink FTP (``warpbridge.bridge.mavftp``),
+which MAVProxy and Mission Planner try first.
+
+Types: integer parameters go out as MAV_PARAM_TYPE_INT32, the rest as REAL32.
+How an integer sits in PARAM_VALUE's float field follows the flight controller,
+since ground stations decode our component's values by the autopilot they see:
+ArduPilot casts (3 -> 3.0; MAVSDK, MAVProxy and QGroundControl read it so from an
+ArduPilot system), PX4 copies the bytes (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE).
+PARAM_SET is read the same way: REAL32 as a plain float; UINT8 .. INT32 cast
+(ArduPilot) or byte-wise (PX4); any other type, and an integer's bytes sent to
+an ArduPilot-style component (a denormal float), is refused, never guessed.
+
+Addressing follows PX4's mavlink_parameters and ArduPilot's router: a request
+counts when target_system is ours (or 0 for list/read) and target_component is
+191 or 0 (MAV_COMP_ID_ALL); FTP only when addressed to 191 itself (a session
+has one server). A set that is refused (NaN, inf, out of range, not a whole
+number, an unknown param_type, sender not in the allow-list) is answered with the
+unchanged value plus a STATUSTEXT saying why. Clients re-send a set whose echo
+differs (MAVProxy and MAVSDK up to three times): the same refused set from the
+same sender within ``REPEAT_S`` is echoed again but not reported again. A set of
+a name we do not have gets the STATUSTEXT only (as PX4 does; there is no index to
+answer with), and a broadcast one nothing, as it is the other components' to
+answer. Sets addressed to another system or component are not ours: no answer.
+Replies go out at most ``send_rate_hz`` per second (token bucket) so a slow
+telemetry radio is not flooded; FTP replies, single reads and set echoes go
+before the rest of a list. Refusal STATUSTEXTs are limited too (burst 5, then one
+a second): a flood of bad sets is counted (``refused``, ``texts_dropped``), not
+echoed onto the radio.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import struct
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
+from warpbridge.bridge.mavftp import FtpServer, PackedParam
 from warpbridge.bridge.mavlink_env import mavlink
 from warpbridge.bridge.params import ParamError, ParamStore
 
@@ -36,6 +53,18 @@ log = logging.getLogger(__name__)
 _BURST = 10  # PARAM_VALUE messages that may go out back to back
 _TEXT_BURST = 5.0  # refusal STATUSTEXTs back to back, then _TEXT_PER_S
 _TEXT_PER_S = 1.0
+REPEAT_S = 5.0  # the same refused set again within this long is a client's retry: echoed, not reported
+_REPEATS_KEPT = 64
+
+_F32_MIN_NORMAL = 1.1754943508222875e-38
+REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
+INT32 = mavlink.MAV_PARAM_TYPE_INT32
+# integer types a PARAM_SET may carry: struct format of the value in the float's low bytes (byte-wise)
+_INT_TYPES = {
+    mavlink.MAV_PARAM_TYPE_UINT8: "<B", mavlink.MAV_PARAM_TYPE_INT8: "<b",
+    mavlink.MAV_PARAM_TYPE_UINT16: "<H", mavlink.MAV_PARAM_TYPE_INT16: "<h",
+    mavlink.MAV_PARAM_TYPE_UINT32: "<I", mavlink.MAV_PARAM_TYPE_INT32: "<i",
+}
 
 
 def param_name(raw: Any) -> str:
@@ -43,6 +72,37 @@ def param_name(raw: Any) -> str:
     if isinstance(raw, bytes | bytearray):
         raw = bytes(raw).decode("ascii", "replace")
     return str(raw).split("\x00", 1)[0]
+
+
+def bytewise(link: Any) -> bool:
+    """True if integers travel byte-wise in the float field (PX4), False if cast (ArduPilot, unknown)."""
+    return getattr(link, "autopilot", None) == "px4"
+
+
+def encode_value(value: float, integer: bool, byte_wise: bool) -> tuple[float, int]:
+    """(float field, param_type) of PARAM_VALUE for a stored value."""
+    if not integer:
+        return float(value), REAL32
+    n = int(round(value))
+    if byte_wise:
+        return struct.unpack("<f", struct.pack("<i", n))[0], INT32
+    return float(n), INT32
+
+
+def decode_value(raw: float, param_type: int, byte_wise: bool) -> float:
+    """The number a PARAM_SET carries; ValueError (the reason) for a type or encoding we do not read."""
+    if param_type == REAL32:
+        return float(raw)
+    fmt = _INT_TYPES.get(param_type)
+    if fmt is None:
+        raise ValueError(f"param_type {param_type} refused")
+    if byte_wise:
+        bits = struct.pack("<f", raw)
+        return float(struct.unpack(fmt, bits[: struct.calcsize(fmt)])[0])
+    if raw != 0.0 and abs(raw) < _F32_MIN_NORMAL:
+        # a denormal is an integer's bytes (PX4 style) sent to an ArduPilot-style component: never guess
+        raise ValueError("byte-wise int refused")
+    return float(raw)  # cast, as ArduPilot sends and reads it (validation rejects fractions)
 
 
 def printable(name: str) -> str:
@@ -73,7 +133,11 @@ class ParamServer:
         self._last = clock()
         self._text_tokens = _TEXT_BURST
         self._text_last = self._last
+        self._recent: OrderedDict[tuple, float] = OrderedDict()  # refused set -> when last seen
+        self._ftp_out: deque[tuple[tuple[int, int], bytes]] = deque()  # (to, payload)
+        self.ftp = FtpServer(self.packed_params, clock=clock)
         self.refused = 0
+        self.repeats = 0
         self.texts_dropped = 0
 
     # ------------------------------------------------------------------ entry points
@@ -89,7 +153,7 @@ class ParamServer:
 
     @property
     def busy(self) -> bool:
-        return bool(self._urgent or self._list)
+        return bool(self._urgent or self._list or self._ftp_out)
 
     def handle(self, msg: Any) -> bool:
         """Handle one message; True if it was a parameter message for us."""
@@ -114,7 +178,19 @@ class ParamServer:
                 return False
             self._handle_set(msg)
             return True
+        if mtype == "FILE_TRANSFER_PROTOCOL":
+            if self.link.system_id is None or (msg.target_system, msg.target_component) != (
+                    self.link.system_id, self.link.component_id):
+                return False
+            sender = (msg.get_srcSystem(), msg.get_srcComponent())
+            self._ftp_out.extend((sender, p) for p in self.ftp.handle(sender, msg.payload))
+            return True
         return False
+
+    def packed_params(self) -> list[PackedParam]:
+        """Every parameter as the FTP parameter file carries it."""
+        values = self.store.values()
+        return [PackedParam(n, values[n], s.integer, float(s.default)) for n, s in self.store.specs.items()]
 
     # ------------------------------------------------------------------ requests
 
@@ -135,33 +211,46 @@ class ParamServer:
         if name == "_HASH_CHECK":
             return  # QGroundControl's cache probe: we do not publish a hash
         broadcast = msg.target_component == 0
+        key = (msg.get_srcSystem(), msg.get_srcComponent(), name, struct.pack("<f", msg.param_value), msg.param_type)
         if name not in self.store:
             if not broadcast:
-                self._refuse(f"unknown parameter {printable(name)}")
+                self._refuse(f"unknown parameter {printable(name)}", key)
             return
         index = self.store.index(name)
         sender = msg.get_srcSystem()
         if self.allowed_gcs is not None and sender not in self.allowed_gcs:
-            self._refuse(f"{name}: sysid {sender} may not set params")
+            self._refuse(f"{name}: sysid {sender} may not set params", key)
             self._queue_urgent(index)
             return
-        if msg.param_type != mavlink.MAV_PARAM_TYPE_REAL32:
-            # the value field of another type may be byte-wise encoded (PX4 style): never guess
-            self._refuse(f"{name}: param_type {msg.param_type} refused, send REAL32")
+        try:
+            value = decode_value(msg.param_value, msg.param_type, bytewise(self.link))
+        except ValueError as e:
+            self._refuse(f"{name}: {e}", key)
             self._queue_urgent(index)
             return
-        value = msg.param_value
         try:
             stored = self.store.set(name, value)
         except ParamError as e:
-            self._refuse(str(e))
+            self._refuse(str(e), key)
         else:
             log.info("%s set to %g by %d/%d", name, stored, sender, msg.get_srcComponent())
         self._queue_urgent(index)  # echo: new value if accepted, old one if refused
 
-    def _refuse(self, reason: str) -> None:
+    def _is_repeat(self, key: tuple, now: float) -> bool:
+        """True if ``key`` (sender, name, value, type) was refused within REPEAT_S; remembers it."""
+        last = self._recent.pop(key, None)
+        self._recent[key] = now
+        while len(self._recent) > _REPEATS_KEPT:
+            self._recent.popitem(last=False)
+        return last is not None and now - last <= REPEAT_S
+
+    def _refuse(self, reason: str, key: tuple | None = None) -> None:
         self.refused += 1
         now = self.clock()
+        if key is not None and self._is_repeat(key, now):
+            self.repeats += 1
+            log.debug("parameter set refused again (a client's retry, not reported): %s", reason)
+            return
         self._text_tokens = min(_TEXT_BURST, self._text_tokens + (now - self._text_last) * _TEXT_PER_S)
         self._text_last = now
         if self._text_tokens < 1.0:
@@ -182,6 +271,12 @@ class ParamServer:
         now = self.clock()
         self._tokens = min(float(_BURST), self._tokens + (now - self._last) * self.send_rate_hz)
         self._last = now
+        while self._tokens >= 1.0 and self._ftp_out:
+            (to_sys, to_comp), payload = self._ftp_out[0]
+            if not self.link.send(mavlink.MAVLink_file_transfer_protocol_message(0, to_sys, to_comp, payload)):
+                return
+            self._ftp_out.popleft()
+            self._tokens -= 1.0
         while self._tokens >= 1.0 and (self._urgent or self._list):
             queue = self._urgent if self._urgent else self._list
             if not self.send_value(queue[0]):
@@ -192,10 +287,10 @@ class ParamServer:
     def send_value(self, index: int) -> bool:
         """Send PARAM_VALUE for the parameter at ``index`` now."""
         name = self.store.names[index]
+        spec = self.store.specs[name]
         value = self.store.get(name)
         if not math.isfinite(value):  # cannot happen through set(); keep the wire clean anyway
-            value = float(self.store.specs[name].default)
-        msg = mavlink.MAVLink_param_value_message(
-            name.encode("ascii"), value, mavlink.MAV_PARAM_TYPE_REAL32, len(self.store), index
-        )
+            value = float(spec.default)
+        raw, ptype = encode_value(value, spec.integer, bytewise(self.link))
+        msg = mavlink.MAVLink_param_value_message(name.encode("ascii"), raw, ptype, len(self.store), index)
         return self.link.send(msg)

@@ -42,6 +42,8 @@ import subprocess
 import sys
 import time
 import tomllib
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -66,6 +68,7 @@ from warpbridge.sitl.lockstep import (
     run_lockstep,
 )
 from warpbridge.sitl.maestro_emu import MaestroEmulator
+from warpbridge.sitl.mock_autopilot import gcs_output_string
 from warpbridge.sitl.report import comparison_table, plot_run, run_table
 from warpbridge.sitl.scenarios import SCENARIO_NAMES, WINGS, Rig, Scenario, make_scenario
 from warpbridge.sitl.wing import SITL_AERO_LOAD, SimWing, WingSpec
@@ -78,6 +81,7 @@ STARTUP_TIMEOUT_S = 30.0  # for each child to come up
 MOCK_START_MAX_S = 10.0  # longest the mock autopilot's process may take from launch to its roll clock's start
 END_MARGIN_S = 0.2  # rig time flown beyond the scenario's stretch
 AGREE_TOLERANCE = 0.20
+COARSE_MATCH_S = 30.0  # log stretch the coarse search of the scenario offset looks at
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,7 +100,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MODEL.json the simulated wing follows (params and effects; default: the paper's)")
     parser.add_argument("--bridge-model", default="paper",
                         help="model the bridge's feed-forward uses: 'paper' or a MODEL.json (default paper)")
-    parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                        help="the flight controller the mock imitates: its messages, streams and parameter "
+                             "encoding (default ardupilot)")
     parser.add_argument("--mode", choices=MODES, default="ff+pi", help="bridge controller mode (real-time run)")
     parser.add_argument("--kp", type=float, default=None,
                         help=f"PI gain, mm/deg (default: {RIG_KP:g} for the simulated rig's fast servo in real time; "
@@ -107,12 +113,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "Ki = 1 deg of horn per deg s, 0.175 mm/(deg s))")
     parser.add_argument("--seed", type=int, default=0, help="seed of the reference, gusts and noise")
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
+    parser.add_argument("--gcs", action="append", default=None, metavar="OUTPUT",
+                        help=f"ground-station output of the simulated autopilot, repeatable (default {GCS_DEFAULT}, "
+                             "where QGroundControl, Mission Planner and MAVProxy listen): udp:HOST:PORT sends there "
+                             "and replies to whoever answers, udpin:HOST:PORT listens; the bridge is component 191")
+    parser.add_argument("--no-gcs", action="store_true", help="no ground-station output")
 
 
 # ------------------------------------------------------------------ options
 
 
 RIG_KP, RIG_KI = 0.7, 20.0  # PI gains tuned for the simulated rig's servo (real-time demo)
+GCS_DEFAULT = "udp:127.0.0.1:14550"  # where ArduPilot's and PX4's SITL send: ground stations listen there
+
+
+def gcs_outputs(args: argparse.Namespace) -> list[str]:
+    """The ground-station outputs asked for (``--gcs``, default 14550; none with ``--no-gcs``), checked."""
+    if args.no_gcs:
+        if args.gcs:
+            raise UserError("--gcs and --no-gcs contradict each other")
+        return []
+    out = []
+    for spec in args.gcs or [GCS_DEFAULT]:
+        try:
+            full = gcs_output_string(spec)
+        except ValueError as e:
+            raise UserError(f"--gcs {e}") from None
+        kind, _, address = full.partition(":")
+        if kind == "udpin":  # a port we listen on must be free now, not fail inside the child later
+            host, _, port = address.rpartition(":")
+            try:
+                with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+                    probe.bind((host, int(port)))
+            except OSError as e:
+                raise UserError(f"--gcs {full}: cannot listen there: {e.strerror or e}") from None
+        out.append(full)
+    return out
 
 
 def parse_effects(text: str) -> Effects:
@@ -309,11 +345,14 @@ def scenario_offset(scenario: Scenario, t: np.ndarray, setpoint: np.ndarray, lo:
     (flying cycles only) to the scenario's reference."""
     ok = np.isfinite(setpoint)
     t, sp = t[ok], setpoint[ok]
-    best, best_err = lo, math.inf
-    for step, span in ((0.005, None), (0.0002, 0.006)):
+    coarse = t <= t[0] + COARSE_MATCH_S if t.size else ok  # the shift is one number: a stretch finds it
+    best = lo
+    for step, span, keep in ((0.005, None, coarse), (0.0002, 0.006, slice(None))):
         a, b = (lo, hi) if span is None else (best - span, best + span)
+        tt, ss = t[keep], sp[keep]
+        best_err = math.inf
         for tau in np.arange(a, b + step / 2, step):
-            err = float(np.mean((scenario.reference(t + tau)["left"] - sp) ** 2))
+            err = float(np.mean((scenario.reference(tt + tau)["left"] - ss) ** 2))
             if err < best_err:
                 best, best_err = float(tau), err
     return best
@@ -367,13 +406,13 @@ def io_delays(log_t: np.ndarray, rig_at_log0: float, vrig: VirtualRig) -> tuple[
     return tuple(zip(*(c.tolist() for c in cols), strict=True))
 
 
-def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
+def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[str]) -> int:
     rig = Rig()
     name = args.scenario or "random"
     scenario = make_scenario(name, HOLD_S + args.duration + STARTUP_MARGIN_S, rig=rig, seed=args.seed,
                              hold_s=HOLD_S)
     roll_csv = scenario.write_csv(out / "roll.csv")
-    fc_port, gcs_port = free_udp_port(), free_udp_port()
+    fc_port = free_udp_port()
     wings = make_wings(scenario, spec, w0_deg=rig.bias_deg, seed=args.seed)
     vrig = VirtualRig(rig, wings)
     emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
@@ -404,12 +443,13 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         children = ((bridge, "bridge", "bridge.log"),)
         _wait_until(lambda: bool(vrig.reads["left"]), vrig, children, out, "the bridge to start its loop")
         print(f"sitl: bridge running ({vrig.now():.1f} s); starting the mock {args.autopilot} "
-              f"(UDP {fc_port}, GCS on udpin:127.0.0.1:{gcs_port}) ...", flush=True)
+              f"(to the bridge on UDP {fc_port}) ...", flush=True)
+        print(f"sitl: ground station: {gcs_banner(gcs)}", flush=True)
         t_mock = vrig.now()
         with (out / "mock-autopilot.log").open("w") as mlog:
             mock = subprocess.Popen(
-                [sys.executable, "-m", "warpbridge.sitl.mock_autopilot",
-                 "--fc-port", str(fc_port), "--gcs-port", str(gcs_port),
+                [sys.executable, "-m", "warpbridge.sitl.mock_autopilot", "--fc-port", str(fc_port),
+                 *(a for g in gcs for a in ("--gcs", g)),
                  "--autopilot", args.autopilot, "--roll-file", str(roll_csv), "--seed", str(args.seed), "-v"],
                 stdout=mlog, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         children = ((mock, "mock autopilot", "mock-autopilot.log"), (bridge, "bridge", "bridge.log"))
@@ -428,6 +468,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
 
     if not bridge_log.exists():
         raise UserError(f"the bridge wrote no cycle log; see {out / 'bridge.log'}:\n{_tail(out / 'bridge.log')}")
+    print(f"sitl: joining the bridge's {_count_lines(bridge_log)} logged cycles to the wings' true warp ...",
+          flush=True)
     cyc = read_cycle_log(bridge_log)
     np.savez_compressed(out / "rig.npz", **{f"{w}_{k}": np.asarray(v, dtype=np.float64) for w in WINGS for k, v in
                                            (("reads", vrig.reads[w]), ("targets", vrig.target_log[w]))})
@@ -447,11 +489,13 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
     print("sitl: flying the same stretch in lock-step (the bridge's cycle on a simulated clock) ...", flush=True)
     runs = {}
     replay = replace(sched, cycle_times=tuple(rt.t), io_delays=io_delays(cyc["t"], rig_at_log0, vrig))
-    for label, sch in (("lock-step", replay), ("ideal timing", sched)):
-        runs[label], _ = run_lockstep(
-            scenario, mode=args.mode, spec=spec, config=rig_config(rig, args.mode, kw["kp"], kw["ki"]),
-            controller_params=bridge_params(args.bridge_model), seed=args.seed, schedule=sch, t_end=t_to + 0.05,
-            flow_shift_s=rig_at_log0 - tau)
+    stages = (("lock-step", replay), ("ideal timing", sched))
+    for i, (label, sch) in enumerate(stages, start=1):
+        with stage_progress(f"sitl: lock-step {i}/{len(stages)} ({label})", t_to + 0.05) as progress:
+            runs[label], _ = run_lockstep(
+                scenario, mode=args.mode, spec=spec, config=rig_config(rig, args.mode, kw["kp"], kw["ki"]),
+                controller_params=bridge_params(args.bridge_model), seed=args.seed, schedule=sch,
+                t_end=t_to + 0.05, flow_shift_s=rig_at_log0 - tau, progress=progress)
         runs[label].compute_rms(t_from=t_from, t_to=t_to)
     ls, ideal = runs["lock-step"], runs["ideal timing"]
     rt.compute_rms(t_from=t_from, t_to=t_to)
@@ -468,6 +512,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         log.warning("the real-time bridge ran %d cycles on that stretch, lock-step %d: the machine was busy",
                     rt.cycles, ls.cycles)
     summary = {"scenario": name, "mode": args.mode, "duration_s": args.duration, "autopilot": args.autopilot,
+               "gcs": gcs,
                "effects": spec.plant.effects.to_dict(), "scenario_offset_s": tau, "hold_s": HOLD_S,
                "stretch_s": [t_from, t_to],
                "schedule": {"tick_offset_s": sched.tick_offset_s, "msg_offset_s": sched.msg_offset_s,
@@ -481,6 +526,23 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec) -> int:
         print(f"plot: {png}")
     print(f"logs: {out}")
     return 0
+
+
+def gcs_banner(gcs: list[str]) -> str:
+    """One line telling a user where to attach a ground station."""
+    if not gcs:
+        return "none (--no-gcs)"
+    where = []
+    for g in gcs:
+        kind, _, address = g.partition(":")
+        where.append(f"listening on {address}" if kind in ("udpin", "tcpin") else f"sending to {address}")
+    return (f"{', '.join(where)} ({', '.join(gcs)}); the autopilot is component 1, the bridge component 191 "
+            "(QGroundControl, Mission Planner, MAVProxy listen on 14550)")
+
+
+def _count_lines(path: Path) -> int:
+    with path.open("rb") as f:
+        return max(0, sum(1 for _ in f) - 1)
 
 
 def _text(path: Path) -> str:
@@ -508,6 +570,36 @@ def _wait_until(done, vrig: VirtualRig, children, out: Path, what: str) -> None:
         time.sleep(0.005)
 
 
+@contextmanager
+def stage_progress(label: str, total_s: float) -> Iterator[Callable[[float], None]]:
+    """A progress callback over ``total_s`` simulated seconds: a tqdm bar on a terminal, else a line
+    when the stage starts and one when it ends (with its wall time)."""
+    t0 = time.monotonic()
+    quiet = logging.getLogger("warpbridge.bridge.telemetry")  # the replayed bridge's status lines, again
+    level = quiet.level
+    quiet.setLevel(max(logging.WARNING, quiet.getEffectiveLevel()))
+    try:
+        yield from _stage_bar(label, total_s)
+    finally:
+        quiet.setLevel(level)
+    print(f"{label}: done in {time.monotonic() - t0:.1f} s", flush=True)
+
+
+def _stage_bar(label: str, total_s: float) -> Iterator[Callable[[float], None]]:
+    from tqdm import tqdm
+
+    if sys.stderr.isatty():
+        with tqdm(total=round(total_s, 1), unit="s", desc=label, leave=False) as bar:
+            def update(t: float) -> None:
+                bar.n = round(min(t, total_s), 1)
+                bar.refresh()
+
+            yield update
+    else:
+        print(f"{label}: {total_s:.0f} s simulated ...", flush=True)
+        yield lambda t: None
+
+
 def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> None:
     """Advance the wings for ``seconds`` of rig time from ``t0``, with progress; fail if a child dies."""
     from tqdm import tqdm
@@ -529,9 +621,23 @@ def _fly(seconds: float, vrig: VirtualRig, t0: float, children, out: Path) -> No
 # ------------------------------------------------------------------ entry point
 
 
+MAX_DURATION_S = 3600.0  # an hour of flight; the lock-step replay of it takes tens of minutes
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse option values that would fail deep inside the run, with one line each."""
+    if not 0 < args.duration <= MAX_DURATION_S:
+        raise UserError(f"--duration must be within 0..{MAX_DURATION_S:g} s (got {args.duration:g})")
+    if args.seed < 0:
+        raise UserError("--seed must be 0 or more")
+    for name in ("kp", "ki"):
+        v = getattr(args, name)
+        if v is not None and not 0 <= v <= 100:
+            raise UserError(f"--{name} must be within 0..100 (got {v:g})")
+
+
 def main(args: argparse.Namespace) -> int:
-    if not args.duration > 0:
-        raise UserError("--duration must be positive")
+    check_options(args)
     spec = wing_spec(args.model, parse_effects(args.effects))
     if args.lockstep:
         scenarios = (args.scenario,) if args.scenario else ("random", "gust7", "gust12")
@@ -544,12 +650,16 @@ def main(args: argparse.Namespace) -> int:
                        controller_params=bridge_params(args.bridge_model))
         print(comparison_table(rows))
         return 0
+    gcs = gcs_outputs(args)
     out = args.out or Path(f"sitl-run-{time.strftime('%Y%m%d-%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot make the folder ({e.strerror or e})") from None
     # Ctrl-C and SIGTERM both unwind through run_realtime's clean-up (even where SIGINT was ignored)
     old = {s: signal.signal(s, _raise_interrupt) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        return run_realtime(args, out, spec)
+        return run_realtime(args, out, spec, gcs)
     finally:
         for s, h in old.items():
             signal.signal(s, h)

@@ -337,6 +337,7 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
                  kp: float | None = None, ki: float | None = None, seed: int = 0,
                  record_wings: bool = False, schedule: Schedule | None = None,
                  t_end: float | None = None, flow_shift_s: float = 0.0,
+                 progress: Callable[[float], None] | None = None,
                  ) -> tuple[RunResult, dict[str, SimWing]]:
     """Fly ``scenario`` in lock-step with the bridge's own cycle in ``mode``, up to ``t_end``
     (default: the scenario's end).
@@ -344,7 +345,8 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
     ``spec`` is the simulated wing (default: the paper's plant with the SITL's small aero
     load); ``controller_params`` the model the bridge uses (default: the config's, the paper's),
     so a wing that differs from the bridge's model is ``spec.with_effects(...)``; ``schedule``
-    where the ticks and messages fall (default: ``Schedule()``)."""
+    where the ticks and messages fall (default: ``Schedule()``); ``progress(t)`` is called with the
+    simulated time about every simulated second."""
     spec = spec or WingSpec()
     sched = schedule or Schedule()
     cfg = config or rig_config(scenario.rig, mode, kp, ki)
@@ -372,13 +374,14 @@ def run_lockstep(scenario: Scenario, *, mode: str = "ff+pi", spec: WingSpec | No
         if controller_params is not None:
             bridge.model = controller_params
         return _fly(scenario, mode, bridge, link, board, clock, cfg, sched, wake,
-                    scenario.duration_s if t_end is None else t_end), wings
+                    scenario.duration_s if t_end is None else t_end, progress), wings
     finally:
         bridge.close()
 
 
 def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: WingBoard, clock: SimClock,
-         cfg: Config, sched: Schedule, wake: bool, t_end: float) -> RunResult:
+         cfg: Config, sched: Schedule, wake: bool, t_end: float,
+         progress: Callable[[float], None] | None = None) -> RunResult:
     """The event loop of ``run_bridge``: ticks at the loop rate plus a cycle per arriving message."""
     period = 1.0 / cfg.loop.rate_hz
     k = math.ceil((0.0 - sched.tick_offset_s) / period - 1e-9)
@@ -387,6 +390,7 @@ def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: Wi
         delays = sched.io_delays or ((0.0, 0.0, 0.0, 0.0),) * len(sched.cycle_times)
         given = iter(sorted((x, d) for x, d in zip(sched.cycle_times, delays, strict=True) if x >= 0.0))
     rows: list[tuple] = []
+    next_report = 1.0
     while True:
         if given is not None:
             t, d = next(given, (math.inf, (0.0, 0.0, 0.0, 0.0)))
@@ -401,6 +405,9 @@ def _fly(scenario: Scenario, mode: str, bridge: Bridge, link: SimLink, board: Wi
                 t, k = t_tick, k + 1
         if t > t_end + 1e-12:
             break
+        if progress is not None and t >= next_report:
+            progress(t)
+            next_report = t + 1.0
         clock.t = t
         link.deliver(t)
         board.last_read = {w: None for w in WINGS}

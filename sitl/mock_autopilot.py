@@ -1,14 +1,22 @@
 """A mock flight controller that speaks MAVLink like ArduPilot Plane or PX4, for SITL and tests.
 
-``python -m sitl.mock_autopilot --fc-port N --gcs-port M --autopilot ardupilot|px4
-[--scenario sine|steps|hold|module:attr | --roll-file CSV]`` (or ``MockAutopilot``
-in-process, with ``start()``/``stop()``). It is system 1 component 1 and sends
-HEARTBEAT as a fixed wing (MAV_AUTOPILOT_ARDUPILOTMEGA or MAV_AUTOPILOT_PX4). It
-sends UDP to 127.0.0.1:N, where the bridge listens (``udpin:127.0.0.1:N``), as
-ArduPilot SITL's ``udpclient`` outputs do, and to 127.0.0.1:M, where a ground
-station listens (MAVProxy ``--master udpin:127.0.0.1:M``, QGroundControl or
-MAVSDK ``udpin://0.0.0.0:M``); any pymavlink string can be given instead with
-``--fc``/``--gcs``.
+``python -m warpbridge.sitl.mock_autopilot --fc-port N [--gcs udp:127.0.0.1:14550 ...]
+--autopilot ardupilot|px4 [--scenario sine|steps|hold|module:attr | --roll-file CSV]``
+(or ``MockAutopilot`` in-process, with ``start()``/``stop()``). It is system 1
+component 1 and sends HEARTBEAT as a fixed wing (MAV_AUTOPILOT_ARDUPILOTMEGA or
+MAV_AUTOPILOT_PX4). It sends UDP to 127.0.0.1:N, where the bridge listens
+(``udpin:127.0.0.1:N``), as ArduPilot SITL's ``udpclient`` outputs do
+(``--fc`` takes any pymavlink string instead).
+
+Ground-station outputs (``--gcs``, repeatable; an int port means
+``udp:127.0.0.1:PORT``) behave as a SITL's: ``udp:HOST:PORT`` / ``udpout:`` (or
+plain ``HOST:PORT``) sends there from the start, heartbeats included, without
+waiting for the ground station, and once a ground station sends, replies go to
+the address it sends from (PX4's UDP link takes its partner's address the same
+way; ArduPilot's ``sim_vehicle.py`` puts MAVProxy ``--out 127.0.0.1:14550`` there);
+``udpin:HOST:PORT`` listens and answers whoever sent; ``tcp:``/``tcpin:`` as
+pymavlink. QGroundControl, Mission Planner and MAVProxy listen on UDP 14550 by
+default, MAVSDK with ``udpin://0.0.0.0:14550``.
 
 It answers MAV_CMD_SET_MESSAGE_INTERVAL with COMMAND_ACK and then streams the
 message at that rate: SERVO_OUTPUT_RAW (36) on both autopilots,
@@ -18,16 +26,19 @@ fills it), VFR_HUD (74). Output pulses come from a roll source, any callable
 aileron outputs 1 and 2), quantised to 1 us with +-1 us jitter. It accepts
 MAV_CMD_DO_SET_SERVO (ArduPilot) and MAV_CMD_DO_SET_ACTUATOR (PX4): acked,
 recorded, and a DO_SET_SERVO output then shows the commanded pulse. It has a few
-parameters of its own so a ground station finishes its parameter download.
+parameters of its own so a ground station finishes its parameter download, by
+PARAM_REQUEST_LIST or, as ArduPilot, as ``@PARAM/param.pck`` over MAVLink FTP
+(as PX4, FTP there is refused at once: file not found).
 
 Routing follows ArduPilot's MAVLink_routing: routes (system, component) ->
 link are learned from what arrives; a message with no target, or a broadcast
 target, is forwarded to every other link that has a route, one for another
 component goes only where that component was heard, and whatever is for us (or
-broadcast) is handled here. So a GCS on M sees the bridge's HEARTBEAT,
-NAMED_VALUE_FLOAT, STATUSTEXT and PARAM_VALUE, and can tune the bridge through
-the mock, as soon as the GCS has sent anything (a GCS heartbeat). The mock's
-own heartbeat and streams go to both links.
+broadcast) is handled here. On top of that, as a SITL's ground-station output
+does, every ground-station output receives everything untargeted that comes
+from the vehicle side (the bridge's HEARTBEAT, NAMED_VALUE_FLOAT, STATUSTEXT,
+PARAM_VALUE) even before the ground station has sent anything: a GCS that only
+listens sees component 191. The mock's own heartbeat and streams go to every link.
 
 Failsafe tests: ``pause_streams(seconds, forget=False, heartbeat=True)`` (CLI
 ``--stall-at T --stall-for S [--stall-forget] [--stall-heartbeat]``) stops the
@@ -44,6 +55,7 @@ os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 
 import argparse  # noqa: E402
 import csv  # noqa: E402
+import errno  # noqa: E402
 import importlib  # noqa: E402
 import logging  # noqa: E402
 import math  # noqa: E402
@@ -52,12 +64,14 @@ import signal  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
-from collections.abc import Callable, Mapping  # noqa: E402
+from collections.abc import Callable, Mapping, Sequence  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
+
+from warpbridge.bridge.mavftp import ERR_FILE_NOT_FOUND, OP_ACK, OP_NAK, FtpOp, FtpServer, PackedParam  # noqa: E402
 
 if mavutil.current_dialect != "ardupilotmega" or mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
     mavutil.set_dialect("ardupilotmega")
@@ -190,6 +204,63 @@ def _connection_string(spec: int | str | None) -> str | None:
     return f"udpout:127.0.0.1:{int(spec)}"
 
 
+# ---------------------------------------------------------------------- ground-station outputs
+
+GCS_KINDS = ("udp", "udpout", "udpin", "tcp", "tcpin")
+
+
+def gcs_output_string(spec: int | str) -> str:
+    """A ground-station output in its full form: an int port or ``HOST:PORT`` -> ``udp:HOST:PORT``.
+
+    Raises ValueError naming the forms accepted."""
+    if isinstance(spec, int) and not isinstance(spec, bool):
+        kind, host, port = "udp", "127.0.0.1", str(spec)
+    else:
+        text = str(spec).strip()
+        kind, _, rest = text.partition(":")
+        if kind not in GCS_KINDS:
+            kind, rest = "udp", text
+        host, sep, port = rest.rpartition(":")
+        if not sep or not host or ":" in host:
+            raise ValueError(f"{spec!r}: expected udp:HOST:PORT (send to), udpin:HOST:PORT (listen), "
+                             "udpout:, tcp: or tcpin:HOST:PORT")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"{spec!r}: port must be 1..65535")
+    return f"{kind}:{host}:{int(port)}"
+
+
+class UdpOutput(mavutil.mavudp):
+    """``udp:HOST:PORT`` as a SITL's ground-station output: sends to HOST:PORT from the start; once
+    something arrives, replies go to the address it came from (the latest sender)."""
+
+    def __init__(self, address: str, **kw: Any) -> None:
+        super().__init__(address, input=False, **kw)
+        self.peer: tuple[str, int] | None = None
+
+    def recv(self, n: int | None = None) -> bytes:
+        try:
+            data, addr = self.port.recvfrom(65535)
+        except OSError as e:
+            if e.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b""
+            raise
+        if addr != self.peer:
+            log.info("ground station at %s:%d", addr[0], addr[1])
+            self.peer = addr
+            self.destination_addr = addr
+            self.resolved_destination_addr = addr[0]
+        return data
+
+
+def open_gcs_output(spec: int | str) -> Any:
+    """The connection for one ground-station output (see ``gcs_output_string``)."""
+    full = gcs_output_string(spec)
+    kind, _, address = full.partition(":")
+    if kind in ("udp", "udpout"):
+        return UdpOutput(address, source_system=SYSID, source_component=COMPID)
+    return mavutil.mavlink_connection(full, source_system=SYSID, source_component=COMPID)
+
+
 @dataclass
 class Command:
     """A COMMAND_LONG the mock received."""
@@ -207,7 +278,7 @@ class MockAutopilot:
     def __init__(
         self,
         fc: int | str,
-        gcs: int | str | None = None,
+        gcs: int | str | Sequence[int | str] | None = None,
         *,
         autopilot: str = "ardupilot",
         roll_source: RollSource | None = None,
@@ -227,10 +298,19 @@ class MockAutopilot:
         self.heartbeat_period = 1.0 / heartbeat_hz
         self._rng = np.random.default_rng(seed)
         self.links: dict[str, Any] = {}
-        for name, spec in (("fc", fc), ("gcs", gcs)):
-            conn_str = _connection_string(spec)
-            if conn_str is not None:
-                self.links[name] = mavutil.mavlink_connection(conn_str, source_system=SYSID, source_component=COMPID)
+        self.links["fc"] = mavutil.mavlink_connection(_connection_string(fc), source_system=SYSID,
+                                                      source_component=COMPID)
+        self.gcs_links: list[str] = []  # ground-station outputs: "gcs", "gcs2", ...
+        outputs = [] if gcs is None else [gcs] if isinstance(gcs, int | str) else list(gcs)
+        try:
+            for i, spec in enumerate(outputs):
+                name = "gcs" if i == 0 else f"gcs{i + 1}"
+                self.links[name] = open_gcs_output(spec)
+                self.gcs_links.append(name)
+        except BaseException:
+            for conn in self.links.values():
+                conn.close()
+            raise
         self.intervals: dict[int, float] = {}  # msg id -> seconds (HEARTBEAT is always on)
         self.commands: list[Command] = []
         self.servo_commands: dict[int, float] = {}  # DO_SET_SERVO: output -> us
@@ -243,6 +323,7 @@ class MockAutopilot:
             if autopilot == "ardupilot"
             else {"MAV_SYS_ID": 1.0, "FW_AIRSPD_TRIM": 15.0, "PWM_MAIN_FUNC1": 201.0}
         )
+        self._ftp_server = FtpServer(self._ftp_params)
         self._next_due: dict[int, float] = {}
         self._pause_until = 0.0
         self._pause_heartbeat = True
@@ -421,8 +502,8 @@ class MockAutopilot:
         broadcast_comp = target_comp in (0, -1)
         match_system = broadcast_system or target_system == SYSID
         process_locally = match_system and (broadcast_comp or target_comp == COMPID)
+        sent_to: set[str] = set()
         if not (process_locally and not broadcast_system and not broadcast_comp):
-            sent_to: set[str] = set()
             for (sysid, compid), out_name in list(self.routes.items()):
                 if out_name == link_name or out_name in sent_to:
                     continue
@@ -436,8 +517,20 @@ class MockAutopilot:
                         self.forwarded[msg.get_type()] = self.forwarded.get(msg.get_type(), 0) + 1
             if not sent_to and match_system:
                 process_locally = True
+        if broadcast_system:
+            self._forward_to_gcs_outputs(link_name, msg, sent_to)
         if process_locally:
             self._handle(link_name, msg)
+
+    def _forward_to_gcs_outputs(self, link_name: str, msg: Any, sent_to: set[str]) -> None:
+        """Untargeted messages from the vehicle side reach every ground-station output, heard from or not."""
+        if link_name in self.gcs_links:
+            return
+        for name in self.gcs_links:
+            if name not in sent_to:
+                self.links[name].write(msg.get_msgbuf())
+                sent_to.add(name)
+                self.forwarded[msg.get_type()] = self.forwarded.get(msg.get_type(), 0) + 1
 
     # ------------------------------------------------------------------ local handling
 
@@ -465,11 +558,30 @@ class MockAutopilot:
                 self._param_value(conn, pid, names.index(pid))
             elif 0 <= msg.param_index < len(names):
                 self._param_value(conn, names[msg.param_index], msg.param_index)
+        elif mtype == "FILE_TRANSFER_PROTOCOL":
+            self._ftp(conn, msg)
         elif mtype == "PARAM_SET":
             pid = str(msg.param_id).split("\x00")[0]
             if pid in self.params and math.isfinite(msg.param_value):
                 self.params[pid] = float(msg.param_value)
                 self._param_value(conn, pid, list(self.params).index(pid))
+
+    def _ftp_params(self) -> list[PackedParam]:
+        return [PackedParam(name, value) for name, value in self.params.items()]
+
+    def _ftp(self, conn: Any, msg: Any) -> None:
+        """MAVLink FTP: ArduPilot serves its parameters as @PARAM/param.pck; PX4 has no such file."""
+        sender = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self.autopilot == "ardupilot":
+            replies = self._ftp_server.handle(sender, msg.payload)
+        else:
+            req = FtpOp.parse(msg.payload)
+            if req.opcode in (OP_ACK, OP_NAK):  # a reply: nothing to answer
+                return
+            replies = [FtpOp(req.seq + 1, req.session, OP_NAK, 1, req.opcode, 0, req.offset,
+                             bytes([ERR_FILE_NOT_FOUND])).pack()]
+        for payload in replies:
+            conn.mav.file_transfer_protocol_send(0, sender[0], sender[1], payload)
 
     def _param_value(self, conn: Any, name: str, index: int) -> None:
         conn.mav.param_value_send(
@@ -520,11 +632,15 @@ class MockAutopilot:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m sitl.mock_autopilot", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m warpbridge.sitl.mock_autopilot",
+                                description=__doc__.split("\n\n")[0])
     p.add_argument("--fc-port", type=int, help="UDP port on 127.0.0.1 where the bridge listens")
-    p.add_argument("--gcs-port", type=int, help="UDP port on 127.0.0.1 where a ground station listens")
     p.add_argument("--fc", help="pymavlink connection string to the bridge instead of --fc-port")
-    p.add_argument("--gcs", help="pymavlink connection string to the ground station instead of --gcs-port")
+    p.add_argument("--gcs", action="append", default=[], metavar="OUTPUT",
+                   help="ground-station output, repeatable: udp:HOST:PORT (send there, reply to the sender), "
+                        "udpin:HOST:PORT (listen), tcp:/tcpin:HOST:PORT; a plain port means udp:127.0.0.1:PORT")
+    p.add_argument("--gcs-port", type=int, action="append", default=[],
+                   help="UDP port on 127.0.0.1 where a ground station listens (same as --gcs udp:127.0.0.1:PORT)")
     p.add_argument("--autopilot", choices=sorted(AUTOPILOT_IDS), default="ardupilot")
     p.add_argument("--scenario", default="sine", help="sine | steps | hold | module:attr (callable t -> {ch: us})")
     p.add_argument("--roll-file", help="CSV with columns t,ch1,ch2,... [,airspeed] instead of --scenario")
@@ -559,9 +675,14 @@ def main(argv: list[str] | None = None) -> int:
         roll = load_scenario(args.scenario)
         if isinstance(roll, SineRoll):
             roll.amplitude_us, roll.freq_hz = args.amplitude, args.freq
+    try:
+        outputs = [gcs_output_string(int(g) if g.isdigit() else g) for g in args.gcs] + list(args.gcs_port)
+    except ValueError as e:
+        print(f"mock_autopilot: --gcs {e}", file=sys.stderr)
+        return 2
     mock = MockAutopilot(
         fc,
-        args.gcs or args.gcs_port,
+        outputs,
         autopilot=args.autopilot,
         roll_source=roll,
         airspeed_source=airspeed_source,

@@ -4,7 +4,8 @@
 per wing and mode, beside the paper's bench figures); ``run_table(results)``
 formats one or more runs' RMS per wing; ``plot_run(result, path, other=)`` draws
 setpoint vs true warp, the tracking error and the hysteresis loop (tendon
-travel vs warp) for each wing, with matplotlib's Agg backend (no display).
+travel vs warp) for each wing, with matplotlib's Agg backend (no display); long
+runs are decimated, with a zoom on their worst stretch.
 """
 
 from __future__ import annotations
@@ -52,48 +53,134 @@ def run_table(results: dict[str, RunResult]) -> str:
     return "\n".join(lines)
 
 
+LONG_RUN_S = 30.0  # longer runs get a zoomed window beside the whole run
+ZOOM_S = 10.0
+MAX_POINTS = 4000  # per line over the whole run (decimated beyond)
+
+
+def _stride(n: int) -> int:
+    return max(1, int(np.ceil(n / MAX_POINTS)))
+
+
+def binned_rms(t: np.ndarray, e: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """RMS of ``e`` in consecutive bins of ``width`` s (bin centres, values; bins with fewer than half
+    the usual samples dropped)."""
+    ok = np.isfinite(t) & np.isfinite(e)
+    t, e = t[ok], e[ok]
+    if t.size == 0:
+        return np.zeros(0), np.zeros(0)
+    k = np.floor((t - t[0]) / width).astype(np.int64)
+    n = np.bincount(k)
+    s = np.bincount(k, weights=e * e)
+    keep = n >= max(1.0, 0.5 * float(np.median(n[n > 0])))  # a sliver of a bin at the end says nothing
+    centres = t[0] + (np.arange(n.size) + 0.5) * width
+    return centres[keep], np.sqrt(s[keep] / n[keep])
+
+
+def worst_window(t: np.ndarray, e: np.ndarray, lo: float, hi: float, width: float) -> tuple[float, float]:
+    """The ``width``-second window inside [lo, hi] with the largest RMS of ``e`` (1 s steps)."""
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo <= width:
+        return (lo, hi) if np.isfinite(lo) and np.isfinite(hi) else (float(t[0]), float(t[-1]))
+    best, best_v = lo, -1.0
+    e2 = np.where(np.isfinite(e), e * e, 0.0)
+    c = np.concatenate([[0.0], np.cumsum(e2)])
+    for a in np.arange(lo, hi - width + 1e-9, 1.0):
+        i, j = np.searchsorted(t, a), np.searchsorted(t, a + width)
+        if j > i and (v := (c[j] - c[i]) / (j - i)) > best_v:
+            best, best_v = float(a), v
+    return best, best + width
+
+
 def plot_run(result: RunResult, path: str | Path, title: str | None = None, other: RunResult | None = None,
              other_label: str = "lock-step") -> Path:
-    """PNG of one run: per wing, setpoint and warp over time, error, and the hysteresis loop.
+    """PNG of one run: per wing, setpoint and true warp over time, the tracking error, the hysteresis loop.
 
-    The stretch the RMS covers is shaded; ``other`` (e.g. the lock-step run) is drawn thin beside it."""
+    The grey band is the stretch the RMS covers (after the start-up settling). ``other`` (e.g. the
+    lock-step replay) is drawn beside the run. Runs longer than ``LONG_RUN_S`` get a row zoomed on the
+    ``ZOOM_S`` seconds with the largest error, the whole run decimated above it, and the error as RMS
+    per second; the hysteresis loop then shows the zoomed window."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     wings = list(result.setpoint)
-    fig, axes = plt.subplots(3, len(wings), figsize=(6 * len(wings), 9), squeeze=False)
+    t = result.t
+    long_run = t.size > 1 and float(t[-1] - t[0]) > LONG_RUN_S
+    rows = 4 if long_run else 3
+    fig, axes = plt.subplots(rows, len(wings), figsize=(6.5 * len(wings), 3.1 * rows + 1.0), squeeze=False)
+    lo, hi = result.stretch
+    shaded = np.isfinite(lo) and np.isfinite(hi)
+    band = Patch(color="0.93", label="RMS stretch (after settling)")
+    sp_style = dict(color="0.35", lw=3.0, alpha=0.45, solid_capstyle="butt", label="setpoint")
+    rt_style = dict(color="tab:red", lw=0.9, label="real time: true warp, its error")
+    ot_style = dict(color="tab:blue", lw=0.7, ls=(0, (3, 2)), label=f"{other_label}: true warp, its error")
+    zoom_patch = Patch(color="gold", alpha=0.35, label=f"window zoomed below ({ZOOM_S:g} s)")
     for j, w in enumerate(wings):
-        t, sp, wt = result.t, result.setpoint[w], result.warp[w]
+        sp, wt = result.setpoint[w], result.warp[w]
+        err = sp - wt
+        k = _stride(t.size)
         ax = axes[0, j]
-        ax.plot(t, sp, "--", lw=1, label="setpoint")
-        ax.plot(t, wt, lw=1, label="warp (true)")
+        ax.plot(t[::k], sp[::k], **sp_style)
+        ax.plot(t[::k], wt[::k], **rt_style)
         if other is not None:
-            ax.plot(other.t, other.warp[w], lw=0.6, alpha=0.8, label=f"warp ({other_label})")
-        ax.set_title(f"{w} wing: RMS {result.rms.get(w, float('nan')):.3f} deg"
-                     + (f" ({other_label} {other.rms.get(w, float('nan')):.3f})" if other is not None else ""))
-        ax.set_xlabel("t (s)")
+            ko = _stride(other.t.size)
+            ax.plot(other.t[::ko], other.warp[w][::ko], **ot_style)
+        rms = f"RMS {result.rms.get(w, float('nan')):.3f} deg"
+        if other is not None:
+            rms += f" ({other_label} {other.rms.get(w, float('nan')):.3f})"
+        ax.set_title(f"{w} wing: {rms}" + (" - whole run" if long_run else ""))
         ax.set_ylabel("warp (deg)")
-        ax.legend(loc="upper right", fontsize=8)
-        ax = axes[1, j]
-        ax.plot(t, sp - wt, lw=0.8, color="C3")
-        if other is not None:
-            ax.plot(other.t, other.setpoint[w] - other.warp[w], lw=0.5, alpha=0.6, color="C1")
-        ax.axhline(0.0, color="k", lw=0.5)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("setpoint - warp (deg)")
-        lo, hi = result.stretch
-        if np.isfinite(lo) and np.isfinite(hi):
-            for a in axes[:2, j]:
-                a.axvspan(lo, hi, color="0.9", zorder=0)
-        ax = axes[2, j]
-        ax.plot(result.u[w], wt, lw=0.6, color="C2")
+        zoom = worst_window(t, err, lo, hi, ZOOM_S) if long_run else None
+        if zoom is not None:
+            ax.axvspan(*zoom, color=zoom_patch.get_facecolor(), zorder=0)
+            ax = axes[1, j]
+            m = (t >= zoom[0]) & (t <= zoom[1])
+            ax.plot(t[m], sp[m], **sp_style)
+            ax.plot(t[m], wt[m], **rt_style)
+            if other is not None:
+                mo = (other.t >= zoom[0]) & (other.t <= zoom[1])
+                ax.plot(other.t[mo], other.warp[w][mo], **ot_style)
+            ax.set_title(f"{zoom[0]:.0f}..{zoom[1]:.0f} s: the {ZOOM_S:g} s with the largest error")
+            ax.set_ylabel("warp (deg)")
+        ax = axes[rows - 2, j]
+        if long_run:
+            for res, style in ((other, ot_style), (result, rt_style)):
+                if res is None:
+                    continue
+                bt, br = binned_rms(res.t, res.setpoint[w] - res.warp[w], 1.0)
+                ax.plot(bt, br, color=style["color"], lw=1.0, ls=style.get("ls", "-"))
+            ax.set_ylabel("RMS per 1 s of\nsetpoint - true warp (deg)")
+        else:
+            if other is not None:
+                ax.plot(other.t, other.setpoint[w] - other.warp[w], color=ot_style["color"], lw=0.6,
+                        ls=ot_style["ls"])
+            ax.plot(t, err, color=rt_style["color"], lw=0.8)
+            ax.axhline(0.0, color="k", lw=0.5)
+            ax.set_ylabel("setpoint - true warp (deg)")
+        for r in range(rows - 1):
+            a = axes[r, j]
+            if shaded:
+                a.axvspan(lo, hi, color=band.get_facecolor(), zorder=-1)
+            a.set_xlabel("t (s)")
+        if zoom is not None:
+            axes[1, j].set_xlim(*zoom)
+        ax = axes[rows - 1, j]
+        m = ((t >= zoom[0]) & (t <= zoom[1])) if zoom is not None else np.ones(t.size, dtype=bool)
+        ax.plot(result.u[w][m], wt[m], lw=0.6, color="tab:green")
         ax.set_xlabel("tendon travel u (mm)")
-        ax.set_ylabel("warp (deg)")
-        ax.set_title("hysteresis (tendon -> warp)")
-    fig.suptitle(title or f"{result.scenario}, {MODE_LABEL.get(result.mode, result.mode)}")
-    fig.tight_layout()
+        ax.set_ylabel("true warp (deg)")
+        ax.set_title("hysteresis (tendon -> warp)" + (f", {zoom[0]:.0f}..{zoom[1]:.0f} s" if zoom else ""))
+    fig.suptitle((title or f"{result.scenario}, {MODE_LABEL.get(result.mode, result.mode)}")
+                 + "\ntrue warp: the simulated wing's warp at each sensor read of the bridge", fontsize=11)
+    handles = [Line2D([], [], **sp_style), Line2D([], [], **rt_style)]
+    handles += [Line2D([], [], **ot_style)] if other is not None else []
+    handles += ([band] if shaded else []) + ([zoom_patch] if long_run else [])
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=8, frameon=False,
+               bbox_to_anchor=(0.5, 1.0 - 0.75 / fig.get_figheight()))
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.85 / fig.get_figheight()))
     p = Path(path)
     fig.savefig(p, dpi=90)
     plt.close(fig)

@@ -47,6 +47,7 @@ def test_mavsdk_reads_sets_and_receives_telemetry_from_the_bridge_process(tmp_pa
         param = Param(system)
         select_component(param, 191)
         assert param.get_param_float("WB_KP") == pytest.approx(7.0)
+        assert param.get_param_int("WB_MODE") == 3  # an integer, cast into the float field as ArduPilot does
         param.set_param_float("WB_KP", 4.5)
         assert param.get_param_float("WB_KP") == pytest.approx(4.5)
         assert wait_for(lambda: (tmp_path / "params.json").exists()

@@ -93,6 +93,10 @@ def test_mavsdk_reads_sets_and_sees_telemetry(rig):
         param = Param(system)
         select_component(param, 191)
         assert param.get_param_float("WB_KP") == pytest.approx(7.0)
+        # an integer parameter reads as one; the FC here is PX4, so it travels byte-wise, as PX4's own
+        assert param.get_param_int("WB_MODE") == 3
+        param.set_param_int("WB_MODE", 1)
+        assert store.get("WB_MODE") == 1.0 and param.get_param_int("WB_MODE") == 1
         param.set_param_float("WB_KP", 11.0)
         assert store.get("WB_KP") == 11.0
         assert param.get_param_float("WB_KP") == pytest.approx(11.0)

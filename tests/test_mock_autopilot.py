@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import struct
 import subprocess
 import sys
 import threading
@@ -271,3 +272,131 @@ def test_runs_as_a_process_with_a_roll_file(tmp_path):
         proc.wait(10)
         bridge.close()
     assert proc.returncode == 0
+
+
+# ---------------------------------------------------------------------- ground-station outputs, as a SITL's
+
+
+def listener(port: int):
+    """A ground station that only listens on ``port`` (never sends): a raw socket and a parser."""
+    import socket
+
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", port))
+    s.settimeout(0.05)
+    return s, mavlink.MAVLink(None)
+
+
+def heard(sock, parser, cond, timeout: float = 3.0):
+    """The first message ``cond`` accepts, with the address it came from, or (None, None)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            data, addr = sock.recvfrom(65536)
+        except OSError:
+            continue
+        for m in parser.parse_buffer(data) or []:
+            if m.get_type() != "BAD_DATA" and cond(m):
+                return m, addr
+    return None, None
+
+
+def test_a_ground_station_that_only_listens_sees_the_vehicle_and_component_191():
+    fc_port, p1, p2 = free_udp_port(), free_udp_port(), free_udp_port()
+    bridge = endpoint(fc_port, 1, 191)
+    gcs1, parse1 = listener(p1)
+    gcs2, parse2 = listener(p2)
+    mock = MockAutopilot(fc_port, [f"udp:127.0.0.1:{p1}", p2], autopilot="ardupilot").start()
+    try:
+        hb, mock_addr = heard(gcs1, parse1, lambda m: m.get_type() == "HEARTBEAT")
+        assert hb is not None and (hb.get_srcSystem(), hb.get_srcComponent()) == (1, 1)  # without asking
+        say_hello(bridge, mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
+        for _ in range(3):
+            bridge.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            bridge.mav.param_value_send(b"WB_KP", 7.0, mavlink.MAV_PARAM_TYPE_REAL32, 1, 0)
+            time.sleep(0.05)
+        for sock, parser in ((gcs1, parse1), (gcs2, parse2)):  # both outputs, neither has sent a byte
+            hb191, _ = heard(sock, parser, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 191)
+            assert hb191 is not None and hb191.type == mavlink.MAV_TYPE_ONBOARD_CONTROLLER
+            pv, _ = heard(sock, parser, lambda m: m.get_type() == "PARAM_VALUE")
+            assert pv is not None and pv.param_id == "WB_KP" and pv.get_srcComponent() == 191
+        assert mock.gcs_links == ["gcs", "gcs2"]
+    finally:
+        mock.stop()
+        bridge.close()
+        gcs1.close()
+        gcs2.close()
+
+
+def test_an_output_replies_to_wherever_the_ground_station_sends_from():
+    fc_port, out_port = free_udp_port(), free_udp_port()
+    first, parse_first = listener(out_port)
+    mock = MockAutopilot(fc_port, out_port, autopilot="px4").start()
+    moved, parse_moved = listener(free_udp_port())  # a ground station on another port, e.g. MAVProxy's udpout
+    try:
+        _, mock_addr = heard(first, parse_first, lambda m: m.get_type() == "HEARTBEAT")
+        assert mock_addr is not None
+        gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+        moved.sendto(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID,
+                                                       0, 0, 0, 3).pack(gcs), mock_addr)
+        moved.sendto(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 74, 1e5,
+                                                          0, 0, 0, 0, 0).pack(gcs), mock_addr)
+        ack, _ = heard(moved, parse_moved, lambda m: m.get_type() == "COMMAND_ACK")
+        assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
+        assert heard(moved, parse_moved, lambda m: m.get_type() == "HEARTBEAT")[0] is not None
+        time.sleep(0.3)
+        while heard(first, parse_first, lambda m: True, timeout=0.1)[0] is not None:
+            pass  # what was already on its way
+        assert heard(first, parse_first, lambda m: True, timeout=1.5)[0] is None  # nothing more to the old port
+    finally:
+        mock.stop()
+        first.close()
+        moved.close()
+
+
+def test_ground_station_output_strings():
+    from warpbridge.sitl.mock_autopilot import gcs_output_string
+
+    assert gcs_output_string(14550) == "udp:127.0.0.1:14550"
+    assert gcs_output_string("udp:127.0.0.1:14550") == "udp:127.0.0.1:14550"
+    assert gcs_output_string("udpout:10.0.0.2:14550") == "udpout:10.0.0.2:14550"
+    assert gcs_output_string("udpin:0.0.0.0:14551") == "udpin:0.0.0.0:14551"
+    assert gcs_output_string("192.168.1.5:14550") == "udp:192.168.1.5:14550"  # MAVProxy --out style
+    for bad in ("udp:14550", "udp:host:0", "udp:host:70000", "serial:/dev/x:1", "udp:host:x", ""):
+        with pytest.raises(ValueError):
+            gcs_output_string(bad)
+
+
+@pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
+def test_parameter_download_over_ftp_as_the_autopilot_does(ends, autopilot):
+    from warpbridge.bridge.mavftp import (
+        ERR_FILE_NOT_FOUND,
+        OP_ACK,
+        OP_BURST_READ_FILE,
+        OP_NAK,
+        OP_OPEN_FILE_RO,
+        FtpOp,
+    )
+
+    make, _, gcs = ends
+    mock = make(autopilot=autopilot)
+    say_hello(gcs)
+    path = b"@PARAM/param.pck"
+    gcs.mav.file_transfer_protocol_send(0, 1, 1, FtpOp(0, 1, OP_OPEN_FILE_RO, len(path), 0, 0, 0, path).pack())
+    reply = recv(gcs, "FILE_TRANSFER_PROTOCOL")
+    assert reply is not None and (reply.target_system, reply.target_component) == (255, 190)
+    op = FtpOp.parse(reply.payload)
+    if autopilot == "px4":  # PX4 has no @PARAM: refused at once, the client falls back to the list
+        assert op.opcode == OP_NAK and op.data[0] == ERR_FILE_NOT_FOUND
+        return
+    assert op.opcode == OP_ACK
+    gcs.mav.file_transfer_protocol_send(0, 1, 1, FtpOp(1, 1, OP_BURST_READ_FILE, 200).pack())
+    data = b""
+    while (m := recv(gcs, "FILE_TRANSFER_PROTOCOL")) is not None:
+        op = FtpOp.parse(m.payload)
+        if op.opcode != OP_ACK:
+            break
+        data += op.data
+    magic, num, total = struct.unpack("<HHH", data[:6])
+    assert (magic, num, total) == (0x671B, len(mock.params), len(mock.params))
+    assert b"SYSID_THISMAV" in data

@@ -138,9 +138,10 @@ BAD_SETS = [
     ("unknown id", b"WB_NOPE", 1.0, REAL32, (1, 191), "text"),
     ("16-char unknown id, no NUL", b"WB_KPXXXXXXXXXXX", 1.0, REAL32, (1, 191), "text"),
     ("non-ASCII id", b"WB_\xff\x01\n\x1b[2J", 1.0, REAL32, (1, 191), "text"),
-    ("INT32 byte-wise", b"WB_MODE", bytewise_int(1), mavlink.MAV_PARAM_TYPE_INT32, (1, 191), "echo"),
+    ("INT32 byte-wise to an ArduPilot", b"WB_MODE", bytewise_int(1), mavlink.MAV_PARAM_TYPE_INT32, (1, 191), "echo"),
     ("type 0", b"WB_KP", 9.0, 0, (1, 191), "echo"),
-    ("UINT8", b"WB_KP", 9.0, mavlink.MAV_PARAM_TYPE_UINT8, (1, 191), "echo"),
+    ("REAL64", b"WB_KP", 9.0, mavlink.MAV_PARAM_TYPE_REAL64, (1, 191), "echo"),
+    ("UINT8, not whole", b"WB_MODE", 1.5, mavlink.MAV_PARAM_TYPE_UINT8, (1, 191), "echo"),
     ("NaN", b"WB_KP", math.nan, REAL32, (1, 191), "echo"),
     ("+inf", b"WB_KI", math.inf, REAL32, (1, 191), "echo"),
     ("-inf", b"WB_I_MAX", -math.inf, REAL32, (1, 191), "echo"),
@@ -167,7 +168,8 @@ def test_bad_param_set_changes_nothing_and_is_answered_as_the_protocol_expects(
     values, texts = rig.take("PARAM_VALUE"), rig.take("STATUSTEXT")
     if reply == "echo":
         pname = name.decode()
-        assert [(m.param_id, m.param_type) for m in values] == [(pname, REAL32)]
+        ptype_out = mavlink.MAV_PARAM_TYPE_INT32 if rig.bridge.store.specs[pname].integer else REAL32
+        assert [(m.param_id, m.param_type) for m in values] == [(pname, ptype_out)]
         assert values[0].param_value == pytest.approx(stored[pname])
         assert values[0].param_index == rig.bridge.store.index(pname)
         assert values[0].param_count == len(rig.bridge.store)
@@ -209,6 +211,7 @@ def test_a_flood_of_bad_sets_does_not_flood_the_radio(rig):
 
 class FakeLink:
     system_id, component_id = 1, 191
+    autopilot = "ardupilot"  # integers cast into the float field
 
     def __init__(self) -> None:
         self.sent: list = []
@@ -248,7 +251,9 @@ def test_any_param_set_changes_a_value_only_when_valid(name, value, ptype, ts, t
     ours = ts == 1 and tc in (0, 191)
     spec = store.specs.get(pname)
     wire = msg.param_value
-    valid = (spec is not None and ptype == REAL32 and math.isfinite(wire)
+    # REAL32 and the integer types 1..6, cast as ArduPilot does; an integer's bytes (a denormal) refused
+    readable = ptype == REAL32 or (1 <= ptype <= 6 and not (wire != 0 and abs(wire) < 1.1754943508222875e-38))
+    valid = (spec is not None and readable and math.isfinite(wire)
              and spec.min - 1e-6 * max(1, abs(spec.min)) <= wire <= spec.max + 1e-6 * max(1, abs(spec.max))
              and (not spec.integer or abs(wire - round(wire)) < 1e-6 * max(1, abs(wire))))
     after = store.values()
@@ -260,7 +265,8 @@ def test_any_param_set_changes_a_value_only_when_valid(name, value, ptype, ts, t
     echoes = [m for m in link.sent if m.get_type() == "PARAM_VALUE"]
     if ours and spec is not None:
         assert len(echoes) == 1 and param_name(echoes[0].param_id) == pname
-        assert echoes[0].param_value == after[pname] and echoes[0].param_type == REAL32
+        assert echoes[0].param_value == after[pname]
+        assert echoes[0].param_type == (mavlink.MAV_PARAM_TYPE_INT32 if spec.integer else REAL32)
     else:
         assert echoes == []
     if not ours or (spec is None and tc == 0):

@@ -231,7 +231,8 @@ def test_list_sends_every_parameter_with_count_and_index(setup):
     assert sorted(got) == list(range(len(store)))
     for i, m in got.items():
         assert m.param_count == len(store)
-        assert m.param_type == mavlink.MAV_PARAM_TYPE_REAL32
+        integer = store.specs[store.names[i]].integer  # WB_MODE: announced as an integer, as ArduPilot does
+        assert m.param_type == (mavlink.MAV_PARAM_TYPE_INT32 if integer else mavlink.MAV_PARAM_TYPE_REAL32)
         assert (m.get_srcSystem(), m.get_srcComponent()) == (1, 191)
         assert m.param_id == store.names[i]
         assert m.param_value == pytest.approx(store.get(store.names[i]))
@@ -325,3 +326,116 @@ def test_param_name_with_and_without_terminator():
     assert param_name(b"WB_KP\x00\x00junk") == "WB_KP"
     assert param_name("WB_LIM_TENDON_MM") == "WB_LIM_TENDON_MM"
     assert param_name(b"ABCDEFGHIJKLMNOP") == "ABCDEFGHIJKLMNOP"
+
+
+# ---------------------------------------------------------------------- types and repeated refusals, server level
+
+
+class FakeLink:
+    """What ParamServer needs of FcLink; ``autopilot`` is the FC's firmware as the link saw it."""
+
+    system_id, component_id = 1, 191
+
+    def __init__(self, autopilot: str | None) -> None:
+        self.autopilot = autopilot
+        self.sent: list = []
+        self.texts: list[str] = []
+
+    def send(self, msg) -> bool:
+        self.sent.append(msg)
+        return True
+
+    def send_statustext(self, severity: int, text: str) -> bool:
+        self.texts.append(text)
+        return True
+
+    def values(self) -> list:
+        out = [m for m in self.sent if m.get_type() == "PARAM_VALUE"]
+        self.sent.clear()
+        return out
+
+
+def wire(msg, src=(255, 190)):
+    """``msg`` packed by a ground station and parsed back, as it arrives at the bridge."""
+    frame = msg.pack(mavlink.MAVLink(None, srcSystem=src[0], srcComponent=src[1]))
+    return mavlink.MAVLink(None).parse_buffer(frame)[0]
+
+
+def f32_bits(x: float) -> bytes:
+    return np.float32(x).tobytes()
+
+
+def int_bits(n: int) -> bytes:
+    return np.int32(n).tobytes()
+
+
+@pytest.mark.parametrize("autopilot", ["ardupilot", "px4", None])
+def test_integer_parameters_travel_as_int32_encoded_as_the_flight_controller_does(autopilot):
+    store = ParamStore(specs(), None)
+    store.set("WB_MODE", 2)
+    link = FakeLink(autopilot)
+    server = ParamServer(store, link, clock=lambda: 0.0)
+    server.poll([wire(mavlink.MAVLink_param_request_list_message(1, 191))])
+    got = {param_name(m.param_id): m for m in wire_all(link.values())}
+    mode, kp = got["WB_MODE"], got["WB_KP"]
+    assert kp.param_type == mavlink.MAV_PARAM_TYPE_REAL32 and kp.param_value == pytest.approx(7.0)
+    assert mode.param_type == mavlink.MAV_PARAM_TYPE_INT32
+    if autopilot == "px4":  # PX4: the int32's bytes in the float field (a denormal float)
+        assert f32_bits(mode.param_value) == int_bits(2)
+    else:  # ArduPilot (and an FC not yet seen): the value cast to float
+        assert mode.param_value == 2.0
+
+
+def wire_all(msgs: list) -> list:
+    return [wire(m, src=(1, 191)) for m in msgs]
+
+
+@pytest.mark.parametrize("autopilot, raw, ptype, expect", [
+    ("ardupilot", 1.0, mavlink.MAV_PARAM_TYPE_INT32, 1.0),  # MAVSDK / QGC to an ArduPilot: cast
+    ("ardupilot", 0.0, mavlink.MAV_PARAM_TYPE_INT8, 0.0),
+    ("ardupilot", 2.0, mavlink.MAV_PARAM_TYPE_REAL32, 2.0),  # MAVProxy sends REAL32 on ArduPilot
+    ("ardupilot", np.frombuffer(int_bits(1), np.float32)[0], mavlink.MAV_PARAM_TYPE_INT32, None),  # not whole
+    ("px4", np.frombuffer(int_bits(1), np.float32)[0], mavlink.MAV_PARAM_TYPE_INT32, 1.0),  # byte-wise
+    ("px4", np.frombuffer(bytes([2, 0, 0, 0]), np.float32)[0], mavlink.MAV_PARAM_TYPE_UINT8, 2.0),
+    ("px4", 2.0, mavlink.MAV_PARAM_TYPE_REAL32, 2.0),
+    ("px4", 2.0, mavlink.MAV_PARAM_TYPE_REAL64, None),  # a type the float field cannot carry
+    ("ardupilot", 2.0, 0, None),  # not a MAV_PARAM_TYPE
+])
+def test_param_set_of_an_integer_is_read_as_the_flight_controller_encodes_it(autopilot, raw, ptype, expect):
+    store = ParamStore(specs(), None)
+    link = FakeLink(autopilot)
+    server = ParamServer(store, link, clock=lambda: 0.0)
+    server.poll([wire(mavlink.MAVLink_param_set_message(1, 191, b"WB_MODE", float(raw), ptype))])
+    echo = wire_all(link.values())
+    assert [param_name(m.param_id) for m in echo] == ["WB_MODE"]
+    if expect is None:
+        assert store.get("WB_MODE") == 3.0 and len(link.texts) == 1
+    else:
+        assert store.get("WB_MODE") == expect and link.texts == []
+
+
+def test_a_refused_set_retried_by_the_client_is_reported_once():
+    store = ParamStore(specs(), None)
+    link = FakeLink("ardupilot")
+    clock = [0.0]
+    server = ParamServer(store, link, clock=lambda: clock[0])
+    bad = wire(mavlink.MAVLink_param_set_message(1, 191, b"WB_KP", 500.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    for _ in range(3):  # MAVProxy and MAVSDK re-send a set whose echo differs, about once a second
+        server.poll([bad])
+        clock[0] += 1.0
+    assert len(link.texts) == 1 and "WB_KP" in link.texts[0]
+    assert len(link.values()) == 3  # every retry is still answered with the unchanged value
+    assert server.refused == 3 and server.repeats == 2
+    other = wire(mavlink.MAVLink_param_set_message(1, 191, b"WB_KP", 600.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    server.poll([other])  # another value: a new refusal
+    assert len(link.texts) == 2
+    server.poll([wire(mavlink.MAVLink_param_set_message(1, 191, b"WB_NOPE", 1.0, mavlink.MAV_PARAM_TYPE_REAL32))])
+    server.poll([wire(mavlink.MAVLink_param_set_message(1, 191, b"WB_NOPE", 1.0, mavlink.MAV_PARAM_TYPE_REAL32))])
+    assert len(link.texts) == 3 and "unknown" in link.texts[-1]
+    clock[0] += 10.0  # much later the same set again: the user tried again, say so again
+    server.poll([bad])
+    assert len(link.texts) == 4
+    # another ground station sending the same bad value is told too
+    server.poll([wire(mavlink.MAVLink_param_set_message(1, 191, b"WB_KP", 500.0, mavlink.MAV_PARAM_TYPE_REAL32),
+                      src=(254, 190))])
+    assert len(link.texts) == 5

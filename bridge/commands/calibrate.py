@@ -46,9 +46,11 @@ def main(args: argparse.Namespace) -> int:
     from warpbridge.bridge.config import load_config
     from warpbridge.bridge.loop_timer import LoopTimer
 
-    config = load_config(args.config)
     if args.seconds is not None and not 8.0 <= args.seconds <= 29.0:
         raise UserError("--seconds must be within 8..29")
+    if not 0.0 <= args.timeout <= 600.0:
+        raise UserError("--timeout must be within 0..600 s")
+    config = load_config(args.config)
     bridge = Bridge(config, connect_timeout=0.0 if args.no_fc else args.timeout)
     try:
         tuning = bridge.tuning

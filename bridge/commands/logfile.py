@@ -170,7 +170,12 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     d = p.parent if str(p.parent) else Path(".")
     if not d.is_dir():
         raise UserError(f"{p}: directory {d} does not exist")
-    atomic.write_text_atomic(p, text)
+    if p.is_dir():
+        raise UserError(f"{p}: is a directory")
+    try:
+        atomic.write_text_atomic(p, text)
+    except OSError as e:
+        raise UserError(f"{p}: cannot write ({e.strerror or e})") from None
 
 
 def write_csv_atomic(path: str | os.PathLike, columns: dict[str, np.ndarray], fmt: str = "%.9g") -> None:

@@ -50,12 +50,17 @@ def _range(text: str, name: str) -> tuple[float, float]:
     return parts[0], parts[1]
 
 
+MAX_SAMPLES = 1e8  # 2.3 days at 500 Hz; a CSV of several GB
+
+
 def simulate_log(plant: Plant, excitation_name: str, duration: float, rate: float, warp_range: tuple[float, float],
                  noise: float, airspeed: tuple[float, float], seed: int = 0, cutoff: float = 1.0,
                  freq: float = 1.0) -> dict[str, np.ndarray]:
     """Columns t, u, warp, airspeed of a simulated log."""
     if not (duration > 0 and rate > 0):
         raise UserError("duration and rate must be positive")
+    if not duration * rate <= MAX_SAMPLES:
+        raise UserError(f"duration x rate gives {duration * rate:.3g} samples; at most {MAX_SAMPLES:.0e}")
     n = int(round(duration * rate))
     if n < 10:
         raise UserError("duration x rate gives fewer than 10 samples")
@@ -88,6 +93,10 @@ def simulate_log(plant: Plant, excitation_name: str, duration: float, rate: floa
 
 
 def main(args: argparse.Namespace) -> int:
+    if args.seed < 0:
+        raise UserError("--seed must be 0 or more")
+    if not args.noise >= 0:
+        raise UserError("--noise must be 0 or more")
     mf = load_model(args.plant)
     effects = mf.effects.merged(parse_effects(args.effects))
     plant = Plant(mf.params, effects)
