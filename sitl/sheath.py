@@ -63,8 +63,8 @@ from numba import njit
 K_N, K_KSEG, K_SSEG, K_TS, K_R, K_EREST, K_KW, K_AH, K_XWREST, K_MMDEG = range(10)
 N_KPARAMS = 10
 # layout of the kernel's small state vector (besides the positions)
-S_LOAD, S_UHINT, S_UDIR, S_LHINT, S_LDIR, S_JHINT, S_BAD = range(7)
-N_SSTATE = 7
+S_LOAD, S_UHINT, S_UDIR, S_LHINT, S_LDIR, S_BAD, S_JHINT = range(7)  # S_JHINT..+3: per (servo, load) direction
+N_SSTATE = 10
 
 X_TOL = 1e-12  # mm, position tolerance of each solve
 R_TOL = 1e-12  # relative tolerance of the stick test
@@ -137,34 +137,33 @@ def _g(t, mult, j0, j1, wing, load, target, p):
 
 @njit(cache=True)
 def _solve_t(mult, j0, j1, wing, load, target, guess, p) -> float:
-    """t >= 0 with _g(t) = 0, or 0 when even zero tension overshoots (the tendon goes slack)."""
-    g0, _ = _g(0.0, mult, j0, j1, wing, load, target, p)
-    if g0 >= 0.0:
-        return 0.0
+    """t >= 0 with _g(t) = 0, or 0 when even zero tension overshoots (the tendon goes slack).
+
+    Newton from the guess inside a bracket kept from the signs seen: _g increases and is concave wherever the
+    far end is pulled (every term is), so after one step the iterates climb to the root from below."""
     lo = 0.0
-    hi = max(guess, 1e-3)
-    ghi, _ = _g(hi, mult, j0, j1, wing, load, target, p)
-    n = 0
-    while ghi < 0.0 and n < 200:
-        lo = hi
-        hi *= 2.0
-        ghi, _ = _g(hi, mult, j0, j1, wing, load, target, p)
-        n += 1
-    t = guess if lo < guess < hi else 0.5 * (lo + hi)
+    hi = math.inf
+    zero_seen = False
+    t = max(guess, 0.0)
     for _ in range(200):
         gv, dg = _g(t, mult, j0, j1, wing, load, target, p)
+        if t == 0.0:
+            zero_seen = True
+            if gv >= 0.0:
+                return 0.0
+        if abs(gv) <= X_TOL:
+            return t
         if gv > 0.0:
             hi = t
         else:
             lo = t
-        if abs(gv) <= X_TOL:
-            break
-        tn = t - gv / dg if dg > 0.0 else 0.5 * (lo + hi)
-        if not (lo < tn < hi):
+        tn = t - gv / dg
+        if tn <= lo:
+            tn = 0.0 if not zero_seen else 0.5 * (lo + hi)
+        elif tn >= hi:
             tn = 0.5 * (lo + hi)
         if abs(tn - t) <= 1e-15 * (1.0 + t):
-            t = tn
-            break
+            return tn
         t = tn
     return t
 
@@ -351,24 +350,34 @@ def _meeting_trial(pos, tmp, tmp2, mult, x0, load, su, sl, idx, p) -> bool:
     return _all_slip(pos, tmp, mult, x0, load, k, su, sl, p)
 
 
+@njit(cache=True, inline="always")
+def _jslot(su: float, sl: float) -> int:
+    return S_JHINT + (2 if su > 0.0 else 0) + (1 if sl > 0.0 else 0)
+
+
+@njit(cache=True, inline="always")
+def _hint_node(h: float, n: int) -> int:
+    """The node a stored meeting configuration is about (its stuck node, or the split)."""
+    i = int(h)
+    return i if i <= n else i - n - 1
+
+
 @njit(cache=True)
-def _meeting(pos, tmp, tmp2, mult, st, x0, load, su, sl, b, p, use_hint) -> bool:
-    """Servo and load zones that meet: the last configuration first, then stuck nodes and splits outwards from
-    node b, where the load zone alone would have stopped; the first consistent one lands in tmp."""
+def _meeting(pos, tmp, tmp2, mult, st, x0, load, su, sl, b, reach, p) -> bool:
+    """Servo and load zones that meet: stuck nodes and splits outwards from node b, up to ``reach`` nodes away;
+    the first consistent one lands in tmp."""
     n = int(p[K_N])
-    if use_hint and st[S_JHINT] > 0:
-        if _meeting_trial(pos, tmp, tmp2, mult, x0, load, su, sl, int(st[S_JHINT]), p):
-            return True
-    for d in range(n + 2):
+    slot = _jslot(su, sl)
+    for d in range(min(reach, n + 1) + 1):
         for side in range(2):
             if d == 0 and side == 1:
                 continue
             c = b + d if side == 0 else b - d
             if 1 <= c <= n and _meeting_trial(pos, tmp, tmp2, mult, x0, load, su, sl, c, p):
-                st[S_JHINT] = c
+                st[slot] = c
                 return True
             if 0 <= c <= n and _meeting_trial(pos, tmp, tmp2, mult, x0, load, su, sl, n + 1 + c, p):
-                st[S_JHINT] = n + 1 + c
+                st[slot] = n + 1 + c
                 return True
     return False
 
@@ -387,13 +396,17 @@ def _advance(pos, tmp, tmp2, mult, st, x0, load, p, use_hint):
     elif su == 0.0:
         b = _search_load(pos, tmp, mult, st, load, sl, p, use_hint, True)
         _copy(tmp, pos, b, n + 1)
+    elif use_hint and st[_jslot(su, sl)] > 0 and _meeting(pos, tmp, tmp2, mult, st, x0, load, su, sl,
+                                                          _hint_node(st[_jslot(su, sl)], n), 1, p):
+        _copy(tmp, pos, 0, n + 1)  # the zones met where they met last time (or a node away)
     else:
         m = _search_servo(pos, tmp, mult, st, x0, load, su, p, use_hint, False)
         b = _search_load(pos, tmp2, mult, st, load, sl, p, use_hint, False)
         if m + 1 < b:  # the two zones stay apart: each as found
+            st[_jslot(su, sl)] = 0.0
             _copy(tmp, pos, 0, m)
             _copy(tmp2, pos, b + 1, n + 1)
-        elif _meeting(pos, tmp, tmp2, mult, st, x0, load, su, sl, b, p, use_hint):
+        elif _meeting(pos, tmp, tmp2, mult, st, x0, load, su, sl, b, n + 1, p):
             _copy(tmp, pos, 0, n + 1)
         else:  # never seen; fall back to the servo move, then the load change
             st[S_BAD] += 1.0
@@ -402,6 +415,16 @@ def _advance(pos, tmp, tmp2, mult, st, x0, load, p, use_hint):
             b = _search_load(pos, tmp, mult, st, load, sl, p, False, False)
             _copy(tmp, pos, b, n + 1)
     st[S_LOAD] = load
+
+
+@njit(cache=True)
+def _run1(pos, st, p, x0, load, use_hint) -> float:
+    """One sample (the per-sample path, without array arguments); returns the warp (deg)."""
+    tmp = np.empty_like(pos)
+    tmp2 = np.empty_like(pos)
+    mult = np.empty_like(pos)
+    _advance(pos, tmp, tmp2, mult, st, x0, load, p, use_hint)
+    return (pos[int(p[K_N]) + 1] + p[K_XWREST]) / p[K_MMDEG]
 
 
 @njit(cache=True)
@@ -500,6 +523,15 @@ class SheathPlant:
         self._st[:] = 0.0
         self._warp = self.rest_warp
 
+    def copy(self) -> SheathPlant:
+        """An independent plant in the same state (to branch a simulation)."""
+        other = SheathPlant(self.params, self.u0)
+        other._pos[:] = self._pos
+        other._st[:] = self._st
+        other._warp = self._warp
+        other._use_hint = self._use_hint
+        return other
+
     @property
     def rest_warp(self) -> float:
         """Warp (deg) at rest: the pre-tension's own pull on the wing."""
@@ -517,14 +549,23 @@ class SheathPlant:
         return np.array([_seg_t(er + self._pos[j - 1] - self._pos[j], self._p) for j in range(1, len(self._pos))])
 
     @property
+    def fallbacks(self) -> int:
+        """Samples the exact solver could not place and solved as a servo move followed by the load change
+        (none seen in testing; a count for tests and benchmarks to check)."""
+        return int(self._st[S_BAD])
+
+    @property
     def load(self) -> float:
         """The external load (N) of the last sample."""
         return float(self._st[S_LOAD])
 
     def step(self, u: float, load_n: float = 0.0) -> float:
         """One sample: tendon travel u (mm) and load (N) -> warp (deg)."""
-        w = self.simulate(np.array([u], dtype=np.float64), load_n)
-        return float(w[0])
+        u, load_n = float(u), float(load_n)
+        if not (math.isfinite(u) and math.isfinite(load_n)):
+            raise ValueError("tendon travel and load must be finite")
+        self._warp = float(_run1(self._pos, self._st, self._p, u - self.u0, load_n, self._use_hint))
+        return self._warp
 
     def simulate(self, u, load_n=0.0) -> np.ndarray:
         """Warp (deg) for each sample of u (mm), with the load (N, scalar or array); continues from the state."""
