@@ -148,8 +148,13 @@ def dahl_run(x, hc, a, k1, k2, c0, e0, h0, q, a0, a1):
     for k in range(n):
         xe = x[k] - q[k] * (a0 + a1 * w) if k > 0 else xp
         du = xe - xp
-        m = int(abs(du) / (0.01 * hc)) + 1
-        d = du / m
+        mf = abs(du) / (0.01 * hc)
+        m = 0
+        if mf >= 10000.0:  # a step of more than 100 hc (friction scaled towards 0): the element saturates
+            h = hc if du > 0 else -hc
+        elif mf == mf:  # not NaN
+            m = int(mf) + 1
+        d = du / max(m, 1)
         for _ in range(m):
             s = 1.0 if d > 0 else -1.0
             g = 1.0 - h / hc * s
