@@ -93,32 +93,11 @@ def _correction(x, w, v, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l
     n = x.shape[0]
     out = np.empty(n)
     eps = DEADBAND * x_span
-    direction = 1.0
-    ext = x[0]
-    rev = x[0]
-    prev = 0.0
-    started = False
+    dirs, dists, prevs = travel_since_reversal(x, eps)
     for k in range(n):
-        xv = x[k]
-        if not started:
-            if abs(xv - x[0]) > eps:
-                direction = 1.0 if xv > x[0] else -1.0
-                started = True
-                ext = xv
-        elif direction > 0:
-            if xv > ext:
-                ext = xv
-            elif ext - xv > eps:
-                prev = ext - rev
-                direction, rev, ext = -1.0, ext, xv
-        else:
-            if xv < ext:
-                ext = xv
-            elif xv - ext > eps:
-                prev = rev - ext
-                direction, rev, ext = 1.0, ext, xv
-        s = direction
-        d = abs(xv - rev)
+        s = dirs[k]
+        d = dists[k]
+        prev = prevs[k]
         h = (w[k] - w_center) / w_scale
         h = min(max(h, -LEVEL_CLIP), LEVEL_CLIP)
         p1 = h
