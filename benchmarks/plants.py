@@ -208,7 +208,7 @@ class BoucWen(Family):
         return self._diagnosed(t, u, airspeed, spec)
 
     def _diagnosed(self, t, u, airspeed, spec):
-        """The diagnosis's effect forms: delay, slew, play, pretension g (x - o), az scale, aero, lag."""
+        """The diagnosis's effect forms: delay, slew, play, pretension g (x - o), saturation scale, aero, lag."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         x = np.ascontiguousarray(u, dtype=np.float64)
         span = self.span
@@ -227,11 +227,11 @@ class BoucWen(Family):
             x = math.exp(0.5 * s * math.sin(th)) * (x - 0.2 * span * s * math.cos(th))
         p = self.p.copy()
         s, a, _ = _size(spec, "friction")
-        if s > 0:  # the loop scaled about the middle of its band
+        if s > 0:  # the band's saturation scaled about its middle, the slope after a reversal kept
             c = math.exp(math.copysign(s, a))
             hi, lo = bw_saturation(p)
             p[2] += p[3] * (1.0 - c) * 0.5 * (hi + lo)
-            p[3] *= c
+            p[6:12] *= c ** (-p[5])
         zero = np.zeros(t.size)
         w = bw_run(p, x, zero, 0.0, 0.0, 0.0, 0.002 * span)
         s, _, b = _size(spec, "aero_load")

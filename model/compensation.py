@@ -5,7 +5,7 @@ the inverse of each static effect a MODEL.json may carry:
 
 - aero_load: the wing loses w (g q) + c q of warp, so the model is asked for
   (w_sp + c q) / (1 - g q), q the dynamic pressure of the current airspeed;
-- friction: the model runs with az scaled (the loop is wider or narrower);
+- friction: the model runs with the saturation of z scaled (the loop is wider or narrower);
 - pretension: the sheath sees gain (u - offset), so the command is u / gain + offset;
 - backlash: the slack is taken up ahead of the motion (u +- width / 2 by the
   direction of the last move, held through pauses).

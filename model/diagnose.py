@@ -113,11 +113,11 @@ class Decision:
     gain in MSE is significant at ``alpha`` (Bonferroni over the effects tried), at least ``min_gain`` x
     the floor (noise^2 plus the model's known error^2) and at least ``min_share`` of the gap model 0
     leaves above that floor. The benchmark chooses these on plant families other than the one it scores
-    (leave-one-family-out)."""
+    (leave-one-family-out); the defaults are the decision four of its five folds chose."""
 
-    alpha: float = 0.01
-    min_share: float = 0.25
-    min_gain: float = 0.25
+    alpha: float = 0.05
+    min_share: float = 0.1
+    min_gain: float = 0.5
 
     def to_dict(self) -> dict:
         return {"alpha": self.alpha, "min_share": self.min_share, "min_gain": self.min_gain}

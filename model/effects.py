@@ -4,7 +4,7 @@ Each effect of the design brief's table is one operator with one or two
 parameters, placed where it acts physically. The augmented plant is the chain::
 
     u_cmd -> delay -> rate_limit -> backlash -> pretension -> Bouc-Wen forward
-          (friction scales az) -> aero_load -> w_true -> sensor_lag -> drift -> w_meas
+          (friction scales the band of z) -> aero_load -> w_true -> sensor_lag -> drift -> w_meas
 
 | name        | parameters                     | operator                                             |
 |-------------|--------------------------------|------------------------------------------------------|
@@ -17,12 +17,13 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
 | aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
 
-Friction scales the hysteretic part of the tendon travel about the middle of
-its band, ``az z -> az (z_mid + s (z - z_mid))`` with z_mid halfway between
-the saturation levels of loading and unloading: the loop widens or narrows
-while its centre line (the elastic backbone) stays where it was. (Scaling az
-alone would also move the loop by ``(s - 1) az z_mid``, which a fit then has
-to undo with a pre-tension offset.)
+Friction scales the width of the hysteresis band as Coulomb friction in a
+sheath does: the saturation levels of z scale by s (``b -> s^-n b``) while
+its slope right after a reversal (``A``, the elastic stick stiffness) stays,
+so a stronger friction needs proportionally more travel to break away; the
+band is scaled about its middle (``a3`` moves by ``az (1 - s) z_mid``, z_mid
+halfway between the saturation levels of loading and unloading), so the
+centre line (the elastic backbone) stays where it was.
 
 The drift is a sensor zero warming up: it starts at ``drift_deg_s`` deg/s and
 settles with time constant ``drift_tau_s``; ``drift_tau_s = inf`` (the default,
@@ -147,8 +148,9 @@ class Effects:
 
 
 def friction_core(params, scale: float):
-    """Bouc-Wen parameters (``model.boucwen.BoucWenParams``) with the friction effect folded in: az scaled
-    by ``scale`` and a3 moved so that the middle of the hysteresis band stays put (see the module docstring)."""
+    """Bouc-Wen parameters (``model.boucwen.BoucWenParams``) with the friction effect folded in: the
+    saturation of z scaled by ``scale`` (b by scale^-n, A kept) and a3 moved so that the middle of the
+    hysteresis band stays put (see the module docstring)."""
     if scale == 1.0:
         return params
     try:
@@ -156,7 +158,8 @@ def friction_core(params, scale: float):
     except (ValueError, ZeroDivisionError, OverflowError):
         hi = lo = math.nan
     mid = 0.5 * (hi + lo) if math.isfinite(hi) and math.isfinite(lo) else 0.0
-    return replace(params, az=params.az * scale, a3=params.a3 + params.az * (1.0 - scale) * mid)
+    k = scale ** (-params.n)
+    return replace(params, b=tuple(k * x for x in params.b), a3=params.a3 + params.az * (1.0 - scale) * mid)
 
 
 def fold_rigging(params, offset: float, gain: float, friction_scale: float = 1.0):

@@ -16,7 +16,8 @@ from warpbridge.model.boucwen import BoucWenParams
 
 @dataclass(frozen=True)
 class Transform:
-    """The rigged wing relative to the base model: u = offset + f(w) / gain, az scaled."""
+    """The rigged wing relative to the base model: u = offset + f(w) / gain, the hysteresis band scaled
+    by ``az_scale`` (the friction effect, ``model.effects.friction_core``)."""
 
     offset: float = 0.0  # mm
     gain: float = 1.0

@@ -36,8 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effects", default=",".join(EFFECT_NAMES),
                    help="comma-separated candidate effects (default: all)")
     p.add_argument("--max-effects", type=int, default=3, help="most effects named at once (default 3)")
-    p.add_argument("--alpha", type=float, default=0.01,
-                   help="family-wise significance level of the held-out tests (default 0.01)")
+    p.add_argument("--alpha", type=float, default=0.05,
+                   help="family-wise significance level of the held-out tests (default 0.05)")
     p.add_argument("--no-model-error", action="store_true",
                    help="ignore the model-error model MODEL.json carries (judge the field against the bare model)")
     p.add_argument("--sensitivity", action="store_true",
