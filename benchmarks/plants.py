@@ -221,11 +221,12 @@ class BoucWen(Family):
         s, _, _ = _size(spec, "backlash")
         if s > 0:
             x = diagnosed_play(x, 0.2 * span * s)
-        s, a, _ = _size(spec, "pretension")
-        if s > 0:
-            th = math.pi * a
-            x = math.exp(0.5 * s * math.sin(th)) * (x - 0.2 * span * s * math.cos(th))
         p = self.p.copy()
+        s, a, _ = _size(spec, "pretension")
+        if s > 0:  # the backbone shifted and its compliance scaled, the friction band kept
+            th = math.pi * a
+            p[0:3] /= math.exp(0.5 * s * math.sin(th))
+            p[2] += 0.2 * span * s * math.cos(th)
         s, a, _ = _size(spec, "friction")
         if s > 0:  # the band's saturation scaled about its middle, the slope after a reversal kept
             c = math.exp(math.copysign(s, a))

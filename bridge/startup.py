@@ -90,14 +90,13 @@ def centre_line(config: Config) -> tuple[float, float, float] | None:
         pt = effects.get("pretension") or {}
         off, gain = float(pt.get("pretension_offset_mm", 0.0)), float(pt.get("pretension_gain", 1.0))
         scale = float((effects.get("friction") or {}).get("friction_scale", 1.0))
-        if scale != 1.0:
-            a3 += _friction_shift(doc["params"], scale)
+        shift = _friction_shift(doc["params"], scale) if scale != 1.0 else 0.0
     except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError, ZeroDivisionError,
             OverflowError):
         return None
-    if not all(math.isfinite(x) for x in (a1, a2, a3, off, gain)) or not gain > 0:
+    if not all(math.isfinite(x) for x in (a1, a2, a3, off, gain, shift)) or not gain > 0:
         return None
-    return a1 / gain, a2 / gain, a3 / gain + off
+    return a1 / gain, a2 / gain, a3 / gain + off + shift
 
 
 def _friction_shift(params: dict, scale: float) -> float:

@@ -1,7 +1,7 @@
 """Online estimation of the tendon's pre-tension (offset, gain) and the warp sensor's zero drift.
 
-The wing is modelled as the Bouc-Wen map behind the ``pretension`` effect of
-``model.effects`` plus a sensor zero error::
+The wing is modelled as the Bouc-Wen map behind a command-side rigging
+(``model.effects.fold_rigging``) plus a sensor zero error::
 
     w_meas = F(gain * (u - offset)) + drift
 

@@ -5,8 +5,8 @@ the inverse of each static effect a MODEL.json may carry:
 
 - aero_load: the wing loses w (g q) + c q of warp, so the model is asked for
   (w_sp + c q) / (1 - g q), q the dynamic pressure of the current airspeed;
-- friction: the model runs with the saturation of z scaled (the loop is wider or narrower);
-- pretension: the sheath sees gain (u - offset), so the command is u / gain + offset;
+- friction and pretension: folded into the model's parameters (``model.effects.core_params``: the
+  band of z scaled, the backbone moved), which the inverse then runs;
 - backlash: the slack is taken up ahead of the motion (u +- width / 2 by the
   direction of the last move, held through pauses).
 
@@ -19,7 +19,7 @@ operators, so an augmented model and its compensator cancel exactly.
 from __future__ import annotations
 
 from warpbridge.model.boucwen import BoucWenParams, Stepper
-from warpbridge.model.effects import Effects, dynamic_pressure_kpa, fold_rigging
+from warpbridge.model.effects import Effects, core_params, dynamic_pressure_kpa
 from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
@@ -29,7 +29,7 @@ INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")
 def folded_params(params: BoucWenParams, effects: Effects) -> BoucWenParams:
     """Bouc-Wen parameters with friction and pre-tension folded in exactly: the rigged wing's model
     u = offset + f(w) / gain with the loop scaled about its middle by the friction factor."""
-    return fold_rigging(params, effects.pretension_offset_mm, effects.pretension_gain, effects.friction_scale)
+    return core_params(params, effects)
 
 
 def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float:

@@ -42,9 +42,9 @@ from warpbridge.model.effects import (
     EFFECT_FIELDS,
     Effects,
     apply_input_effects,
+    core_params,
     drift_shape,
     dynamic_pressure_kpa,
-    friction_core,
     lagged,
 )
 from warpbridge.model.identify import reversal_indices, warmup_end
@@ -275,7 +275,7 @@ class Problem:
         return tuple(getattr(eff, f) for f in INPUT_FIELDS)
 
     def _core_params(self, eff: Effects) -> BoucWenParams:
-        return friction_core(self.params, eff.friction_scale)
+        return core_params(self.params, eff)
 
     def _corrected(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
         if self.error_model is None or not np.all(np.isfinite(w)):

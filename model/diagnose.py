@@ -63,7 +63,7 @@ from warpbridge.model.effects import (
     Effects,
     apply_input_effects,
     apply_output_effects,
-    friction_core,
+    core_params,
 )
 from warpbridge.model.identify import noise_floor
 from warpbridge.model.initial_state import estimate_z0
@@ -86,7 +86,7 @@ SEPARATE: dict[frozenset, str] = {
     frozenset({"friction", "backlash"}): "minor loops of several sizes: backlash is a fixed dead band at every "
                                          "reversal, friction scales the loop width with the excursion",
     frozenset({"friction", "pretension"}): "several amplitudes around several mean tendon positions: pre-tension "
-                                           "shifts and scales the whole curve, friction only widens the loop",
+                                           "moves the curve and changes its slope, friction only widens the loop",
     frozenset({"backlash", "pretension"}): "small reversals at several positions: backlash acts at every "
                                            "reversal, a pre-tension change shifts the curve everywhere",
     frozenset({"pretension", "aero_load"}): "runs at two or more distinct airspeeds (or one at rest): an aero load "
@@ -204,7 +204,7 @@ def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
 def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) -> float:
     """z0 that explains the log's first samples with the model, its effects and its error correction."""
     eff = model.effects
-    p = friction_core(model.params, eff.friction_scale)
+    p = core_params(model.params, eff)
     x = apply_input_effects(eff, t, u)
     if not eff.active() and em is None:
         return estimate_z0(p, x, w)

@@ -3,8 +3,8 @@
 Each effect of the design brief's table is one operator with one or two
 parameters, placed where it acts physically. The augmented plant is the chain::
 
-    u_cmd -> delay -> rate_limit -> backlash -> pretension -> Bouc-Wen forward
-          (friction scales the band of z) -> aero_load -> w_true -> sensor_lag -> drift -> w_meas
+    u_cmd -> delay -> rate_limit -> backlash -> Bouc-Wen forward (pre-tension moves its backbone,
+          friction scales the band of z) -> aero_load -> w_true -> sensor_lag -> drift -> w_meas
 
 | name        | parameters                     | operator                                             |
 |-------------|--------------------------------|------------------------------------------------------|
@@ -12,7 +12,7 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
 | friction    | friction_scale                 | the loop widens or narrows about its middle          |
-| pretension  | pretension_offset_mm, _gain    | u_eff = gain * (u - offset)                          |
+| pretension  | pretension_offset_mm, _gain    | backbone u = offset + (a1 w^2 + a2 w + a3) / gain    |
 | sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
 | drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
 | aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
@@ -24,6 +24,14 @@ so a stronger friction needs proportionally more travel to break away; the
 band is scaled about its middle (``a3`` moves by ``az (1 - s) z_mid``, z_mid
 halfway between the saturation levels of loading and unloading), so the
 centre line (the elastic backbone) stays where it was.
+
+Pre-tension moves the elastic backbone and nothing else: the rig's rest
+position shifts by ``offset`` in tendon travel and its compliance scales by
+``1 / gain`` (a stiffer or slacker rig), ``u = offset + (a1 w^2 + a2 w + a3) /
+gain + az z``; the friction band ``az z`` stays, so a change of the loop's width
+is the friction effect's alone. (The online adapter and the pre-flight
+recalibration use the command-side rigging ``fold_rigging`` instead, which
+scales the whole map.)
 
 The drift is a sensor zero warming up: it starts at ``drift_deg_s`` deg/s and
 settles with time constant ``drift_tau_s``; ``drift_tau_s = inf`` (the default,
@@ -55,7 +63,7 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
     "friction": (("friction_scale",), (1.0,), "sheath friction changed: the hysteresis widens or narrows"),
     "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
-                   "pre-tension changed: the loop shifts in input and scales"),
+                   "pre-tension changed: the elastic backbone shifts in tendon travel and its slope scales"),
     "sensor_lag": (("sensor_tau_s",), (0.0,), "first-order lag in the warp measurement"),
     "drift": (("drift_deg_s", "drift_tau_s"), (0.0, math.inf), "slow drift of the warp sensor's zero over the log"),
     "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
@@ -162,11 +170,28 @@ def friction_core(params, scale: float):
     return replace(params, b=tuple(k * x for x in params.b), a3=params.a3 + params.az * (1.0 - scale) * mid)
 
 
+def pretension_core(params, offset: float, gain: float):
+    """Bouc-Wen parameters with a pre-tension change folded in: the elastic backbone shifts by ``offset``
+    in tendon travel and its compliance scales by ``1 / gain`` (u = offset + (a1 w^2 + a2 w + a3) / gain
+    + az z); the friction band az z stays as it was (that is the ``friction`` effect)."""
+    if gain == 1.0 and offset == 0.0:
+        return params
+    return replace(params, a1=params.a1 / gain, a2=params.a2 / gain, a3=params.a3 / gain + offset)
+
+
+def core_params(params, eff: Effects):
+    """The Bouc-Wen parameters the augmented plant runs: pre-tension and friction folded in."""
+    return friction_core(pretension_core(params, eff.pretension_offset_mm, eff.pretension_gain),
+                         eff.friction_scale)
+
+
 def fold_rigging(params, offset: float, gain: float, friction_scale: float = 1.0):
-    """The Bouc-Wen parameters of the rigged wing ``u = offset + f(w) / gain`` with the friction change
-    folded in as the plant applies it (``friction_core``). Exact: the pre-tension effect
-    u_eff = gain (u - offset) in front of u_eff = a1 w^2 + a2 w + a3 + az z is the model with a_i / gain,
-    a3 / gain + offset and az / gain; z's dynamics do not depend on u."""
+    """The Bouc-Wen parameters of the wing rigged on the command side, ``u = offset + f(w) / gain``, with
+    the friction change folded in as the plant applies it (``friction_core``): the model the online
+    adapter and the pre-flight recalibration estimate (their command transform ``u_cmd = offset +
+    u_ff / gain`` inverts it exactly). Exact: u_eff = gain (u - offset) in front of u_eff = a1 w^2 + a2 w +
+    a3 + az z is the model with a_i / gain, a3 / gain + offset and az / gain; z's dynamics do not depend
+    on u. (The ``pretension`` effect moves only the backbone: ``core_params``.)"""
     if not (gain > 0 and friction_scale > 0 and math.isfinite(offset)):
         raise ValueError("gain and friction scale must be positive, offset finite")
     if gain == 1.0 and offset == 0.0 and friction_scale == 1.0:
@@ -261,7 +286,7 @@ def lagged(t, w, tau, y0):
 
 
 def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash, pretension)."""
+    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash)."""
     x = np.ascontiguousarray(u, dtype=np.float64)
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
@@ -269,8 +294,6 @@ def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray) -> np.ndarra
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.backlash_mm > 0:
         x = play(x, eff.backlash_mm, float(x[0]) - 0.5 * eff.backlash_mm)
-    if eff.pretension_gain != 1.0 or eff.pretension_offset_mm != 0.0:
-        x = eff.pretension_gain * (x - eff.pretension_offset_mm)
     return x
 
 

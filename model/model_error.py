@@ -327,14 +327,14 @@ def bench_error_model(params, effects, t, u, w) -> ErrorModel:
     The model is free-run on the logged input from the initial state its opening stretch gives; samples up
     to the first reversal (capped at a tenth of the log) are left out, as in identification."""
     from warpbridge.model.boucwen import forward
-    from warpbridge.model.effects import apply_input_effects, apply_output_effects, friction_core
+    from warpbridge.model.effects import apply_input_effects, apply_output_effects, core_params
     from warpbridge.model.identify import noise_floor, warmup_end
     from warpbridge.model.initial_state import estimate_z0
 
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
-    p = friction_core(params, effects.friction_scale)
+    p = core_params(params, effects)
     x = apply_input_effects(effects, t, u)
     z0 = estimate_z0(p, x, w)
     w_core = forward(p, x, z0=z0)[0]

@@ -19,9 +19,9 @@ from warpbridge.model.effects import (
     Effects,
     apply_input_effects,
     apply_output_effects,
+    core_params,
     drift_shape,
     dynamic_pressure_kpa,
-    friction_core,
 )
 
 
@@ -34,7 +34,7 @@ class Plant:
 
     def core_params(self) -> BoucWenParams:
         """Bouc-Wen parameters with the friction effect folded in (the loop scaled about its middle)."""
-        return friction_core(self.params, self.effects.friction_scale)
+        return core_params(self.params, self.effects)
 
     def simulate(self, t, u, airspeed=None, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(w_true, w_meas) in deg for tendon command u (mm) sampled at times t (s)."""
@@ -63,8 +63,6 @@ class PlantStepper:
         self._rate_y = float(u0)
         self._play_y = float(u0) - 0.5 * e.backlash_mm
         x0 = self._play_y if e.backlash_mm > 0 else float(u0)
-        if e.pretension_gain != 1.0 or e.pretension_offset_mm != 0.0:
-            x0 = e.pretension_gain * (x0 - e.pretension_offset_mm)
         self.w = rest_warp(plant.core_params(), x0, z0)
         self.z = float(z0)
         self._zn = -1.0  # |z|^n carried between samples, as the array map does
@@ -104,8 +102,6 @@ class PlantStepper:
             elif x + r < self._play_y:
                 self._play_y = x + r
             x = self._play_y
-        if e.pretension_gain != 1.0 or e.pretension_offset_mm != 0.0:
-            x = e.pretension_gain * (x - e.pretension_offset_mm)
         w, z, zn, _ = K.forward_step_zn(self._p, self.w, self.z, self._zn, x)
         self.w, self.z, self._zn = float(w), float(z), float(zn)
         w_true = self.w

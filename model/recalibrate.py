@@ -3,7 +3,8 @@
 Each time the wing is unfolded and rigged the tendon's pre-tension differs
 (Lee et al. 2017, sec. 6), so the bench model's loop shifts in input and scales.
 That change is three numbers on top of the bench (base) model: the pre-tension
-``offset`` (mm) and ``gain`` of ``model.effects`` (u_eff = gain (u - offset)) and
+``offset`` (mm) and ``gain`` of the command-side rigging (u_eff = gain (u - offset),
+``model.effects.fold_rigging``) and
 a hysteresis width scale (``az_scale``: the band of z scaled, the ``friction`` effect). They fold
 exactly into Bouc-Wen parameters (``model.adapt.fold_pretension``), so the
 controller needs nothing new to use them.
