@@ -4,13 +4,14 @@ bounds (how far, how fast) and freezes (sensor, excitation, residual)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from warpbridge.model.adapt import AdaptConfig, AdaptState, PretensionEstimator, fold_pretension
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
-from warpbridge.model.effects import Effects
+from warpbridge.model.effects import Effects, core_params, friction_core
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.plant import Plant
 
@@ -18,12 +19,19 @@ P = BoucWenParams.paper()
 DT = 0.01
 
 
+def rigged(effects: Effects) -> Plant:
+    """The wing re-rigged on the command side, as the estimator models it: pre-tension and friction of
+    ``effects`` folded with ``fold_pretension`` (u = offset + f(w) / gain), its other effects kept."""
+    folded = fold_pretension(P, effects.pretension_offset_mm, effects.pretension_gain, effects.friction_scale)
+    return Plant(folded, replace(effects, pretension_offset_mm=0.0, pretension_gain=1.0, friction_scale=1.0))
+
+
 def record(effects: Effects, seconds: float = 120.0, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Tendon command (a random warp reference through the model) and the rigged wing's warp."""
     t = np.arange(int(seconds / DT)) * DT
     w_ref = 6.0 + filtered_random(t, cutoff_hz=0.5, amplitude=4.0, seed=seed)
     u, _ = inverse(P, w_ref)
-    _, w = Plant(P, effects).simulate(t, u)
+    _, w = rigged(effects).simulate(t, u)
     return u, w
 
 
@@ -38,10 +46,16 @@ def feed(est: PretensionEstimator, u, w, **kw) -> np.ndarray:
 def test_pretension_folds_exactly_into_the_model():
     t = np.arange(3000) * DT
     u = 4.0 + 2.5 * np.sin(2 * np.pi * 0.3 * t) * np.sin(2 * np.pi * 0.07 * t)
+    # the command-side rigging: the sheath sees gain (u - offset)
+    w_cmd, _, _ = forward(friction_core(P, 1.2), 1.12 * (u - 0.7))
+    w_fold, _, _ = forward(fold_pretension(P, 0.7, 1.12, 1.2), u)
+    np.testing.assert_allclose(w_fold, w_cmd, atol=1e-6)
+    # the diagnosis's pretension effect moves only the backbone: u = offset + (a1 w^2 + a2 w + a3) / gain + az z
     eff = Effects(pretension_offset_mm=0.7, pretension_gain=1.12, friction_scale=1.2)
     _, w_plant = Plant(P, eff).simulate(t, u)
-    w_fold, _, _ = forward(fold_pretension(P, 0.7, 1.12, 1.2), u)
-    np.testing.assert_allclose(w_fold, w_plant, atol=1e-6)
+    core = core_params(P, eff)
+    assert (core.a1, core.a2, core.az) == pytest.approx((P.a1 / 1.12, P.a2 / 1.12, P.az))
+    np.testing.assert_allclose(forward(core, u)[0], w_plant, atol=1e-9)
     # and the feed-forward direction: the folded inverse is offset + u_model / gain
     w_ref = 6 + 3 * np.sin(np.linspace(0, 12, 500))
     u_model, _ = inverse(P, w_ref)
@@ -102,7 +116,7 @@ def test_a_wing_held_still_teaches_one_combination_and_freezes_the_other():
     n = 6000
     u0 = 4.0
     uu = np.full(n, u0)
-    _, ww = Plant(P, Effects(pretension_offset_mm=0.5, pretension_gain=1.1)).simulate(np.arange(n) * DT, uu)
+    _, ww = rigged(Effects(pretension_offset_mm=0.5, pretension_gain=1.1)).simulate(np.arange(n) * DT, uu)
     est = PretensionEstimator(P, AdaptConfig(input_tau_s=0.0, rate_mm_s=0.05, rate_gain_s=0.01))
     hist = feed(est, uu, ww)
     e = est.estimate

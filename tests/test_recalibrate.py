@@ -4,12 +4,13 @@ acceptance rule that decides whether a new model is applied."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from warpbridge.model.boucwen import BoucWenParams, inverse
-from warpbridge.model.effects import Effects
+from warpbridge.model.effects import Effects, fold_rigging
 from warpbridge.model.plant import Plant
 from warpbridge.model.recalibrate import AcceptRule, RefitResult, Transform, accept, excitation, refit
 
@@ -18,11 +19,14 @@ DT = 0.01
 
 
 def calibration_record(effects: Effects, seconds: float = 20.0, noise: float = 0.03, seed: int = 0):
-    """The excitation flown in feed-forward with the base model on a wing with ``effects``."""
+    """The excitation flown in feed-forward with the base model on a wing re-rigged by ``effects`` (pre-tension
+    and friction on the command side, as the recalibration models them; the others as they are)."""
     t = np.arange(int(seconds / DT)) * DT
     w_ref = excitation(t, 1.8, 10.2, start_deg=6.0, seed=seed)
     u, _ = inverse(P, w_ref)
-    _, w = Plant(P, effects).simulate(t, u)
+    folded = fold_rigging(P, effects.pretension_offset_mm, effects.pretension_gain, effects.friction_scale)
+    rest = replace(effects, pretension_offset_mm=0.0, pretension_gain=1.0, friction_scale=1.0)
+    _, w = Plant(folded, rest).simulate(t, u)
     return t, u, w + np.random.default_rng(seed).normal(0, noise, w.size)
 
 
