@@ -84,11 +84,12 @@ class SimLink(SimLinkBase):
         self.sent: list = []  # every message the bridge sent (COMMAND_ACK, PARAM_VALUE, ...)
 
     def poll(self) -> list:
-        out, self.inbox = self.inbox, []
+        out, self.inbox = self.inbox + self.take_replies(), []
         return out
 
     def send(self, msg) -> bool:
         self.sent.append(msg)
+        self.fc_answer(msg)
         return True
 
 

@@ -267,7 +267,7 @@ class SimLink(SimLinkBase):
         if self.pwm_override is not None and self.servo_time is not None:
             self.servo_raw = dict(self.pwm_override)
             self.servo_pwm = dict(self.pwm_override)
-        return []
+        return self.take_replies()
 
 
 Read = tuple[float, int, float, float, float]  # (t, counts, true warp, tendon mm, airspeed)
