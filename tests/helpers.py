@@ -4,6 +4,17 @@ from __future__ import annotations
 
 import socket
 
+# the loop-back servo and two wings on aileron output 1, the right one reversed: the tail of a test config
+LOOP_SERVO_WINGS = """[servo]
+backend = "loop:"
+[wing.left]
+source_channel = 1
+servo_channel = 0
+[wing.right]
+source_channel = 1
+reverse = true
+servo_channel = 1
+"""
 
 def free_udp_port() -> int:
     """A UDP port on 127.0.0.1 that nothing is bound to right now."""

@@ -21,7 +21,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from helpers import ManualClock, free_udp_port
+from helpers import LOOP_SERVO_WINGS, ManualClock, free_udp_port
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -44,16 +44,7 @@ source_system = 1
 rate_hz = 100
 [params]
 file = "params.json"
-[servo]
-backend = "loop:"
-[wing.left]
-source_channel = 1
-servo_channel = 0
-[wing.right]
-source_channel = 1
-reverse = true
-servo_channel = 1
-"""
+""" + LOOP_SERVO_WINGS
 
 
 class Rig:

@@ -14,6 +14,7 @@ import sys
 import textwrap
 
 import pytest
+from helpers import LOOP_SERVO_WINGS
 
 from warpbridge.bridge import realtime
 from warpbridge.bridge.config import LoopConfig, parse_config
@@ -173,16 +174,7 @@ def config(loop: str) -> dict:
 connection = "udpin:127.0.0.1:14550"
 [loop]
 {loop}
-[servo]
-backend = "loop:"
-[wing.left]
-source_channel = 1
-servo_channel = 0
-[wing.right]
-source_channel = 1
-reverse = true
-servo_channel = 1
-""")
+{LOOP_SERVO_WINGS}""")
 
 
 def test_loop_keys_parse_with_defaults(tmp_path):

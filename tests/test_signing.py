@@ -10,7 +10,7 @@ import socket
 from pathlib import Path
 
 import pytest
-from helpers import ManualClock, drain_mavlink, free_udp_port
+from helpers import LOOP_SERVO_WINGS, ManualClock, drain_mavlink, free_udp_port
 
 from warpbridge.bridge.app import Bridge
 from warpbridge.bridge.config import load_config
@@ -72,16 +72,7 @@ rate_hz = 100
 failsafe_timeout_s = 0.3
 [params]
 file = "params.json"
-[servo]
-backend = "loop:"
-[wing.left]
-source_channel = 1
-servo_channel = 0
-[wing.right]
-source_channel = 1
-reverse = true
-servo_channel = 1
-"""
+""" + LOOP_SERVO_WINGS
 
 
 class Peer:
