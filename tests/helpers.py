@@ -16,6 +16,7 @@ reverse = true
 servo_channel = 1
 """
 
+
 def free_udp_port() -> int:
     """A UDP port on 127.0.0.1 that nothing is bound to right now."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 import pytest
+from helpers import LOOP_SERVO_WINGS
 
 from warpbridge.bridge.config import load_config
 from warpbridge.bridge.errors import UserError
@@ -40,18 +41,9 @@ def test_minimal_config_takes_defaults(tmp_path):
     cfg = load_config(write(tmp_path, """
 [link]
 connection = "udpin:0.0.0.0:14550"
-[servo]
-backend = "loop:"
 [model]
 file = "models/m.json"
-[wing.left]
-source_channel = 1
-servo_channel = 0
-[wing.right]
-source_channel = 1
-reverse = true
-servo_channel = 1
-"""))
+""" + LOOP_SERVO_WINGS))
     assert cfg.sensor_backend == "none"
     assert cfg.model_file == tmp_path / "models" / "m.json"
     assert cfg.left.sensor_channel is None
