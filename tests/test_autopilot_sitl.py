@@ -354,7 +354,12 @@ def test_start_message_named_values_and_parameters_through_the_fc(plane, bridge_
     assert wait_for(lambda: gcs.latest("L_sp", t0) is not None, 10.0)
     names = {n for t, n, _ in list(gcs.floats) if t >= t0}
     assert {"L_sp", "R_sp", "L_cmd", "R_cmd", "L_ff", "WB_mode", "WB_lat"} <= names, names
-    assert gcs.latest("L_sp") > gcs.latest("R_sp")  # stick right of centre
+    # stick right of centre: once the FC's outputs reach the bridge (its first reports may come from the
+    # neutral it commands at start, before the first SERVO_OUTPUT_RAW)
+    def sides() -> tuple[float, float]:
+        return gcs.latest("L_sp", t0) or 0.0, gcs.latest("R_sp", t0) or 0.0
+
+    assert wait_for(lambda: sides()[0] > sides()[1], 10.0), sides()
     gcs.mav.mav.param_set_send(1, 191, b"WB_KP", 2.5, mavlink.MAV_PARAM_TYPE_REAL32)
     assert wait_for(lambda: gcs.params.get("WB_KP") == pytest.approx(2.5), 10.0), gcs.params
     t1 = time.monotonic()
