@@ -91,6 +91,8 @@ def centre_line(config: Config) -> tuple[float, float, float] | None:
         off, gain = float(pt.get("pretension_offset_mm", 0.0)), float(pt.get("pretension_gain", 1.0))
         scale = float((effects.get("friction") or {}).get("friction_scale", 1.0))
         shift = _friction_shift(doc["params"], scale) if scale != 1.0 else 0.0
+        if doc.get("effect_forms", 1) == 1:  # the earlier forms: the shift was folded before the gain
+            shift /= gain
     except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError, ZeroDivisionError,
             OverflowError):
         return None

@@ -6,12 +6,20 @@ quality ``identify`` measured, free-form provenance and, optionally, the
 model-error model learned from the bench residual (``"model_error"``, read by
 ``diagnose``). The field is optional both ways: files without it load as
 before, and readers that predate it ignore it.
+
+``"effect_forms": 2`` marks the forms of ``friction`` (the band of z scaled)
+and ``pretension`` (the backbone moved) that ``model.effects`` has used since
+they changed. A file without the mark that carries either effect was written
+with the earlier forms (friction scaled az, pre-tension mapped the input,
+u_eff = gain (u - offset)); both are static, so they are folded exactly into
+its Bouc-Wen parameters on reading (``fold_legacy_rigging``) and the file means
+what it meant when it was written.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.model.effects import Effects
@@ -19,6 +27,23 @@ from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.plant import Plant
 
 FORMAT = "warpbridge-model/1"
+EFFECT_FORMS = 2
+
+
+def fold_legacy_rigging(params: BoucWenParams, effects: Effects) -> tuple[BoucWenParams, Effects]:
+    """Parameters and effects of a file written with the earlier friction and pre-tension forms: both
+    folded into the parameters exactly (az scaled about the band's middle, then u = offset + f(w) / gain),
+    the effects left without them."""
+    s, o, g = effects.friction_scale, effects.pretension_offset_mm, effects.pretension_gain
+    if s == 1.0 and o == 0.0 and g == 1.0:
+        return params, effects
+    p = params
+    if s != 1.0:
+        hi, lo = p.z_saturation(1.0)
+        mid = 0.5 * (hi + lo) if math.isfinite(hi) and math.isfinite(lo) else 0.0
+        p = replace(p, az=p.az * s, a3=p.a3 + p.az * (1.0 - s) * mid)
+    p = replace(p, a1=p.a1 / g, a2=p.a2 / g, a3=p.a3 / g + o, az=p.az / g)
+    return p, replace(effects, friction_scale=1.0, pretension_offset_mm=0.0, pretension_gain=1.0)
 
 
 @dataclass
@@ -68,6 +93,7 @@ class ModelFile:
             "params": self.params.to_dict(),
             "z0": self.z0,
             "effects": self.effects.to_dict(),
+            "effect_forms": EFFECT_FORMS,
             "fit": self.fit.to_dict(),
             "meta": self.meta,
         }
@@ -97,5 +123,14 @@ class ModelFile:
         fit = FitQuality.from_dict(d.get("fit") or {})
         em = d.get("model_error")
         model_error = ErrorModel.from_dict(em) if em is not None else None
-        return cls(params=params, effects=effects, z0=z0, fit=fit, meta=dict(d.get("meta") or {}),
-                   model_error=model_error)
+        meta = dict(d.get("meta") or {})
+        forms = d.get("effect_forms", 1)
+        if forms not in (1, EFFECT_FORMS):
+            raise ValueError(f"unsupported effect_forms {forms!r} (this warpbridge reads 1 and {EFFECT_FORMS})")
+        if forms == 1:
+            folded, effects2 = fold_legacy_rigging(params, effects)
+            if effects2 != effects:
+                params, effects = folded, effects2
+                meta["folded_on_reading"] = ("friction and pretension of the earlier effect forms, folded into "
+                                             "params")
+        return cls(params=params, effects=effects, z0=z0, fit=fit, meta=meta, model_error=model_error)

@@ -83,6 +83,12 @@ def test_the_quick_read_of_the_model_file_matches_the_full_one(tmp_path):
     cfg = replace(load_config(config_file(tmp_path, 1, "loop:")), model_file=path)
     full = load_model(cfg)  # the validated read, effects folded by model.compensation
     assert centre_line(cfg) == pytest.approx((full.a1, full.a2, full.a3), rel=1e-12)
+    # a file of the earlier effect forms (no "effect_forms" mark): the quick read follows the full one
+    doc = ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1, friction_scale=1.3)).to_dict()
+    del doc["effect_forms"]
+    path.write_text(json.dumps(doc))
+    full = load_model(cfg)
+    assert centre_line(cfg) == pytest.approx((full.a1, full.a2, full.a3), rel=1e-12)
     # hand check of the fold u = offset + u_model / gain without friction: a3 = 0.5 / 1.1 + 0.6
     path.write_text(json.dumps(ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1)).to_dict()))
     assert centre_line(cfg)[2] == pytest.approx(1.054545454545, rel=1e-9)
