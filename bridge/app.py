@@ -61,7 +61,7 @@ from warpbridge.bridge.telemetry import MODE_CODES, Telemetry
 from warpbridge.hw import DeviceError, open_sensor, open_servo
 from warpbridge.hw.calibration import SensorCalibration, ServoCalibration
 from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.compensation import folded_params
+from warpbridge.model.effects import core_params
 from warpbridge.model.initial_state import algebraic_z0
 
 log = logging.getLogger(__name__)
@@ -152,7 +152,7 @@ class Bridge:
         self.config, self.clock = config, clock
         self._starting = True
         model_file = load_model_file(config)
-        self.model = folded_params(model_file.params, model_file.effects)
+        self.model = core_params(model_file.params, model_file.effects)
         self.ff_effects = model_file.effects.only(("aero_load", "backlash"))  # inverted per step
         self.has_sensor = backend_has_sensor(config.sensor_backend) or sensor is not None
         self.fs_timeout = config.loop.failsafe_timeout_s

@@ -72,10 +72,10 @@ def load_model_file(config: Config) -> ModelFile:
 
 def load_model(config: Config) -> BoucWenParams:
     """The Bouc-Wen parameters named by ``[model] file`` with its friction and pre-tension folded in."""
-    from warpbridge.model.compensation import folded_params
+    from warpbridge.model.effects import core_params
 
     mf = load_model_file(config)
-    return folded_params(mf.params, mf.effects)
+    return core_params(mf.params, mf.effects)
 
 
 def centre_line(config: Config) -> tuple[float, float, float] | None:

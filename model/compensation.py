@@ -18,18 +18,12 @@ operators, so an augmented model and its compensator cancel exactly.
 
 from __future__ import annotations
 
-from warpbridge.model.boucwen import BoucWenParams, Stepper
-from warpbridge.model.effects import Effects, core_params, dynamic_pressure_kpa
+from warpbridge.model.boucwen import Stepper
+from warpbridge.model.effects import Effects, dynamic_pressure_kpa
 from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
 INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")
-
-
-def folded_params(params: BoucWenParams, effects: Effects) -> BoucWenParams:
-    """Bouc-Wen parameters with friction and pre-tension folded in exactly: the rigged wing's model
-    u = offset + f(w) / gain with the loop scaled about its middle by the friction factor."""
-    return core_params(params, effects)
 
 
 def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float:
@@ -63,7 +57,7 @@ class Compensator:
 
     def __init__(self, plant: Plant, w0: float = 0.0, z0: float = 0.0) -> None:
         self.plant = plant
-        self.model = Stepper(folded_params(plant.params, plant.effects), w0=w0, z0=z0)
+        self.model = Stepper(plant.core_params(), w0=w0, z0=z0)
         self.backlash = BacklashInverse(plant.effects.backlash_mm)
 
     def step(self, w_sp: float, airspeed: float | None = None) -> float:

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.effects import Effects
+from warpbridge.model.effects import Effects, fold_rigging, friction_core
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.plant import Plant
 
@@ -37,13 +37,10 @@ def fold_legacy_rigging(params: BoucWenParams, effects: Effects) -> tuple[BoucWe
     s, o, g = effects.friction_scale, effects.pretension_offset_mm, effects.pretension_gain
     if s == 1.0 and o == 0.0 and g == 1.0:
         return params, effects
-    p = params
-    if s != 1.0:
-        hi, lo = p.z_saturation(1.0)
-        mid = 0.5 * (hi + lo) if math.isfinite(hi) and math.isfinite(lo) else 0.0
-        p = replace(p, az=p.az * s, a3=p.a3 + p.az * (1.0 - s) * mid)
-    p = replace(p, a1=p.a1 / g, a2=p.a2 / g, a3=p.a3 / g + o, az=p.az / g)
-    return p, replace(effects, friction_scale=1.0, pretension_offset_mm=0.0, pretension_gain=1.0)
+    # the earlier friction moved a3 as today's does, but scaled az instead of the saturation of z
+    p = replace(friction_core(params, s), az=params.az * s, b=params.b)
+    return fold_rigging(p, o, g), replace(effects, friction_scale=1.0, pretension_offset_mm=0.0,
+                                          pretension_gain=1.0)
 
 
 @dataclass

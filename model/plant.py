@@ -33,7 +33,7 @@ class Plant:
     effects: Effects = field(default_factory=Effects)
 
     def core_params(self) -> BoucWenParams:
-        """Bouc-Wen parameters with the friction effect folded in (the loop scaled about its middle)."""
+        """Bouc-Wen parameters with pre-tension and friction folded in (``model.effects.core_params``)."""
         return core_params(self.params, self.effects)
 
     def simulate(self, t, u, airspeed=None, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
