@@ -18,7 +18,12 @@ linear combination of features of where the hysteresis is::
   and sensor dynamics the rate-independent model cannot express);
 - memory: the turn measured against the previous leg, s exp(-(d / a) / l) for
   three l, and s a, s a^2, a the travel of the previous leg over the span
-  (minor loops that the model closes differently from the wing).
+  (minor loops that the model closes differently from the wing);
+- play: the normalised states q_r = (x - p_r) / r of play operators on the
+  tendon travel, thresholds r from 1 % to 30 % of the span, alone and times
+  the level P1 (a Prandtl-Ishlinskii correction: the memory of friction spread
+  along a sheath, which one Bouc-Wen state cannot hold, wipes out like a
+  stack of plays).
 
 Nested feature sets and a ridge penalty are chosen by blocked cross-validation
 on the bench log, so noise is not learned as structure; the cross-validated
@@ -39,10 +44,11 @@ import numpy as np
 from warpbridge.model._jit import njit
 
 FORMAT = "warpbridge-model-error/1"
-FEATURE_SETS = ("level", "branch", "transition", "rate", "memory")  # nested: each adds columns to the previous
-SET_COLUMNS = {"level": 4, "branch": 3, "transition": 4, "rate": 2, "memory": 5}
+FEATURE_SETS = ("level", "branch", "transition", "rate", "memory", "play")  # nested: each adds to the previous
 TRANSITION_LENGTHS = (0.01, 0.03, 0.1, 0.3)  # of the tendon span
 MEMORY_LENGTHS = (0.05, 0.2, 0.6)  # of the previous leg
+PLAY_THRESHOLDS = (0.01, 0.03, 0.06, 0.1, 0.15, 0.22, 0.3)  # of the tendon span
+SET_COLUMNS = {"level": 4, "branch": 3, "transition": 4, "rate": 2, "memory": 5, "play": 2 * len(PLAY_THRESHOLDS)}
 DEADBAND = 0.005  # of the tendon span: smaller wiggles are not reversals
 RIDGES = (1e-6, 1e-4, 1e-2, 1.0)  # penalty relative to the mean diagonal of the normal equations
 FOLDS = 5
@@ -89,7 +95,31 @@ def travel_since_reversal(x, eps):
 
 
 @njit(cache=True)
-def _correction(x, w, v, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
+def play_states(x, thresholds):
+    """Normalised play-operator states (x - p_r) / r in [-1, 1] per sample (rows) and threshold r (columns);
+    each play starts relaxed at the first sample."""
+    n = x.shape[0]
+    m = thresholds.shape[0]
+    out = np.empty((n, m))
+    for j in range(m):
+        r = thresholds[j]
+        p = x[0]
+        for k in range(n):
+            v = x[k]
+            if v - r > p:
+                p = v - r
+            elif v + r < p:
+                p = v + r
+            out[k, j] = (v - p) / r
+    return out
+
+
+def _plays(x: np.ndarray, x_span: float) -> np.ndarray:
+    return play_states(x, np.asarray(PLAY_THRESHOLDS, dtype=np.float64) * x_span)
+
+
+@njit(cache=True)
+def _correction(x, w, v, q, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
     n = x.shape[0]
     out = np.empty(n)
     eps = DEADBAND * x_span
@@ -123,6 +153,10 @@ def _correction(x, w, v, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l
                 j += 1
             acc += theta[j] * s * leg + theta[j + 1] * s * leg * leg
             j += 2
+        if nsets >= 6:
+            for i in range(q.shape[1]):
+                acc += theta[j] * q[k, i] + theta[j + 1] * q[k, i] * h
+                j += 2
         out[k] = acc
     return out
 
@@ -173,7 +207,9 @@ class ErrorModel:
         nsets = len(self.sets)
         t = np.ascontiguousarray(t, dtype=np.float64)
         v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
-        return _correction(np.ascontiguousarray(x, dtype=np.float64), w, v, self.theta, self.w_center,
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        q = _plays(x, self.x_span) if nsets >= 6 else np.zeros((w.size, 0))
+        return _correction(x, w, v, q, self.theta, self.w_center,
                            self.w_scale, self.x_span, nsets, np.array(TRANSITION_LENGTHS),
                            np.array(MEMORY_LENGTHS))
 
@@ -248,6 +284,10 @@ def design(t, x, w, w_center: float, w_scale: float, x_span: float, rate_scale: 
             leg = np.minimum(a / x_span, 1.0)
             rel = np.minimum(d / np.maximum(a, DEADBAND * x_span), 2.0)
             cols += [s * np.exp(-rel / lam) for lam in MEMORY_LENGTHS] + [s * leg, s * leg * leg]
+        elif name == "play":
+            q = _plays(x, x_span)
+            for i in range(q.shape[1]):
+                cols += [q[:, i], q[:, i] * h]
     if not cols:
         return np.zeros((t.size, 0))
     return np.column_stack(cols)
@@ -263,12 +303,15 @@ def _ridge_solve(A: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
         return np.linalg.lstsq(A, y, rcond=None)[0]
 
 
-def fit_error_model(t, x, w_model, w_meas, noise: float, start: int = 0) -> ErrorModel:
+def fit_error_model(t, x, w_model, w_meas, noise: float, start: int = 0,
+                    sets: tuple[str, ...] = FEATURE_SETS) -> ErrorModel:
     """Learn the model-error model from a bench log: residual w_meas - w_model along input x.
 
     Samples before ``start`` (the warm-up, where the initial state is uncertain) are not used. The feature
-    sets (nested) and the ridge penalty minimise the error on ``FOLDS`` contiguous held-out folds; the
-    empty model (no correction) competes too."""
+    sets (nested prefixes of ``sets``, itself a prefix of ``FEATURE_SETS``) and the ridge penalty minimise
+    the error on ``FOLDS`` contiguous held-out folds; the empty model (no correction) competes too."""
+    if tuple(sets) != FEATURE_SETS[:len(sets)]:
+        raise ValueError(f"feature sets must be a prefix of {', '.join(FEATURE_SETS)}")
     t = np.ascontiguousarray(t, dtype=np.float64)
     x = np.ascontiguousarray(x, dtype=np.float64)
     w_model = np.ascontiguousarray(w_model, dtype=np.float64)
@@ -283,25 +326,26 @@ def fit_error_model(t, x, w_model, w_meas, noise: float, start: int = 0) -> Erro
     x_span = max(float(xh - xl), 1e-9)
     rate = _smooth_rate(t, w_model)
     rate_scale = max(float(np.sqrt(np.mean(rate[use] ** 2))) if use.any() else 1.0, 1e-9)
-    full = design(t, x, w_model, w_center, w_scale, x_span, rate_scale, FEATURE_SETS)
+    full = design(t, x, w_model, w_center, w_scale, x_span, rate_scale, tuple(sets))
     idx = np.flatnonzero(use)
     folds = np.array_split(idx, FOLDS)
     before = float(np.mean(r[idx] ** 2)) if idx.size else math.nan
     best = ((), 0.0, before)  # (sets, ridge, cv mse)
-    if idx.size >= 20 * full.shape[1]:
-        for k in range(1, len(FEATURE_SETS) + 1):
-            ncol = sum(SET_COLUMNS[s] for s in FEATURE_SETS[:k])
-            A = full[:, :ncol]
-            for ridge in RIDGES:
-                sse = 0.0
-                for f in folds:
-                    train = np.setdiff1d(idx, _guarded(f, n, t))
-                    th = _ridge_solve(A[train], r[train], ridge)
-                    e = r[f] - A[f] @ th
-                    sse += float(np.dot(e, e))
-                cv = sse / idx.size
-                if cv < best[2]:
-                    best = (FEATURE_SETS[:k], ridge, cv)
+    for k in range(1, len(sets) + 1):
+        ncol = sum(SET_COLUMNS[s] for s in FEATURE_SETS[:k])
+        if idx.size < 20 * ncol:
+            break  # too few samples for this many columns (and the larger sets after it)
+        A = full[:, :ncol]
+        for ridge in RIDGES:
+            sse = 0.0
+            for f in folds:
+                train = np.setdiff1d(idx, _guarded(f, n, t))
+                th = _ridge_solve(A[train], r[train], ridge)
+                e = r[f] - A[f] @ th
+                sse += float(np.dot(e, e))
+            cv = sse / idx.size
+            if cv < best[2]:
+                best = (FEATURE_SETS[:k], ridge, cv)
     sets, ridge, cv = best
     ncol = sum(SET_COLUMNS[s] for s in sets)
     theta = _ridge_solve(full[idx, :ncol], r[idx], ridge) if ncol else np.zeros(0)

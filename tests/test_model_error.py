@@ -17,6 +17,7 @@ from warpbridge.model.model_error import (
     bench_error_model,
     design,
     fit_error_model,
+    play_states,
     travel_since_reversal,
 )
 from warpbridge.model.modelfile import ModelFile
@@ -40,6 +41,14 @@ def test_a_wiggle_inside_the_deadband_is_not_a_reversal():
     x = np.array([0.0, 1.0, 2.0, 1.9, 2.5, 3.0])
     s, d, _ = travel_since_reversal(x, 0.5)
     assert np.all(s == 1) and d[-1] == 3.0
+
+
+def test_play_states_by_hand():
+    # a play of half-width 1 mm starts relaxed, is dragged along, then lets go inside its band
+    x = np.array([0.0, 0.5, 2.0, 3.0, 2.5, 1.0, 0.5, 1.5])
+    q = play_states(x, np.array([1.0]))[:, 0]
+    # play position: 0, 0, 1, 2, 2, 2, 1.5, 1.5 -> q = x - p
+    np.testing.assert_allclose(q, [0.0, 0.5, 1.0, 1.0, 0.5, -1.0, -1.0, 0.0])
 
 
 def _log(seconds=30.0, fs=200.0, seed=0):
@@ -131,3 +140,41 @@ def test_the_compiled_correction_is_the_feature_matrix_times_theta():
         X = design(t, u, w, 6.0, 4.0, span, 25.0, sets)
         em = ErrorModel(6.0, 4.0, span, 25.0, sets, rng.standard_normal(X.shape[1]))
         np.testing.assert_allclose(em.correction(t, u, w), X @ em.theta, rtol=0, atol=1e-10)
+
+
+def _play(x: np.ndarray, r: float) -> np.ndarray:
+    """A play (backlash) operator written out in plain Python, independent of the module's kernel."""
+    out, p = np.empty_like(x), float(x[0])
+    for k, v in enumerate(x):
+        p = min(max(p, v - r), v + r)
+        out[k] = p
+    return out
+
+
+def test_friction_spread_along_a_sheath_is_learned_by_the_play_set():
+    # the wing's hysteresis carries, on top of the model's, a Prandtl-Ishlinskii part (plays of widths that
+    # are not on the module's grid): memory one Bouc-Wen state cannot hold
+    t, u, _ = _log(seconds=40.0, fs=200.0, seed=10)
+    _, w = Plant(P).simulate(t, u)
+    span = float(np.ptp(u))
+    extra = sum(c * (u - _play(u, f * span)) for c, f in ((0.25, 0.05), (0.12, 0.12), (0.06, 0.25)))
+    noise = 0.02
+    w_meas = w + extra + noise * np.random.default_rng(11).standard_normal(t.size)
+    em = bench_error_model(P, Effects(), t, u, w_meas)
+    assert em.sets[-1] == "play"
+    before = math.sqrt(em.rms_before_deg ** 2 - noise ** 2)
+    without = fit_error_model(t, u, w, w_meas, noise=noise, sets=FEATURE_SETS[:-1])
+    assert before > 5 * noise
+    # with the plays it is left with a small part of what the other sets leave
+    assert em.known_error_deg < 0.5 * without.known_error_deg < 0.5 * before
+
+
+def test_a_short_bench_log_still_gets_the_sets_its_samples_support():
+    # 450 samples: enough for the first sets (20 samples per column), not for the plays' 14 columns more
+    t, u, w = _log(seconds=2.25, fs=200.0, seed=12)
+    span = float(np.ptp(u))
+    X = design(t, u, w, 7.0, 4.5, span, 30.0, FEATURE_SETS[:2])
+    w_meas = w + X @ np.array([0.0, 0.1, 0.0, 0.0, 0.08, 0.0, 0.0])
+    em = fit_error_model(t, u, w, w_meas, noise=0.005)
+    assert em.sets and "play" not in em.sets
+    assert em.rms_after_deg < 0.5 * em.rms_before_deg
