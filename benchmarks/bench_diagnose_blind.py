@@ -409,6 +409,9 @@ def main() -> None:
     print(blind_lofo.pooled_table(folds, seeds))
     print()
     print(blind_lofo.effect_table(results, folds))
+    print("\nthe nominal model on the bench (identify's held-out RMS) and what its model-error model still "
+          "leaves (cross-validated)")
+    print(blind_lofo.bench_error_table(results))
     print("\nwith the shipped default decision " + default + ":")
     rt = blind_lofo.rates(results, default)
     print(f"  singles {rt['single_ok']}/{rt['singles']}, pairs {rt['pair_ok']}/{rt['pairs']}, false alarms "

@@ -192,3 +192,21 @@ def misses(results: list[dict], folds: dict) -> str:
             lines.append(f"  {r['plant']:<28} truth {r['truth'] or '[]'} ({mags or 'none'}; bench misfit "
                          f"{r['bench_misfit_deg']:.3f} deg, effect RMS {r['effect_rms_deg']:.3f} deg) -> {v or '[]'}")
     return "\n".join(lines) if lines else "  none"
+
+
+def bench_error_table(results: list[dict]) -> str:
+    """Per family: what the nominal model gets wrong on the bench (identification's held-out RMS) and what the
+    model-error model still leaves beyond noise (its cross-validated known error), over the family's plants."""
+    per: dict[str, dict[str, tuple[float, float]]] = {}
+    for r in results:
+        per.setdefault(r["family"], {})[r["plant"]] = (r["bench_misfit_deg"], r["model_error_deg"])
+
+    def span(v: list[float]) -> str:
+        return f"{np.median(v):.3f} ({min(v):.3f}-{max(v):.3f})"
+
+    lines = [f"{'family':<20} {'plants':>6} {'bench misfit, deg: median (range)':>36} "
+             f"{'known error after the correction':>36}"]
+    for fam in sorted(per):
+        vals = list(per[fam].values())
+        lines.append(f"{fam:<20} {len(vals):>6} {span([v[0] for v in vals]):>36} {span([v[1] for v in vals]):>36}")
+    return "\n".join(lines)
