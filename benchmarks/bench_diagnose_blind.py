@@ -423,6 +423,8 @@ def main() -> None:
               f"{blind_lofo.TARGETS['seconds']:.0f} s); load average now {os.getloadavg()[0]:.1f}")
     print("\nmisattributed (each with its fold's decision):")
     print(blind_lofo.misses(results, folds))
+    print(f"\nsingle effects closing less than {blind_lofo.TARGETS['min_closed']:.0%} of their check-log gap:")
+    print(blind_lofo.short_closures(results, folds))
     hits = [r for r in results if r.get("bound_hits")]
     if hits:
         print(f"\nfitted parameters at a bound: {len(hits)} cases")

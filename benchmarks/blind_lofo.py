@@ -190,7 +190,22 @@ def misses(results: list[dict], folds: dict) -> str:
         if v != r["truth"]:
             mags = ", ".join(f"{k} {m:.1f}x noise" for k, m in r["magnitude_x_noise"].items())
             lines.append(f"  {r['plant']:<28} truth {r['truth'] or '[]'} ({mags or 'none'}; bench misfit "
-                         f"{r['bench_misfit_deg']:.3f} deg, effect RMS {r['effect_rms_deg']:.3f} deg) -> {v or '[]'}")
+                         f"{r['bench_misfit_deg']:.3f} deg, effect RMS {r['effect_rms_deg']:.3f} deg; check log "
+                         f"without the effect {r['check_rms_nominal_without_effects']:.2f} deg) -> {v or '[]'}")
+    return "\n".join(lines) if lines else "  none"
+
+
+def short_closures(results: list[dict], folds: dict) -> str:
+    """Single-effect cases that close less than ``TARGETS['min_closed']`` of their check-log gap, with what
+    their fold's decision named."""
+    lines = []
+    for _, (dk, rs) in sorted(folds.items()):
+        for r in rs:
+            c = closed_at(r, dk)
+            if len(r["truth"]) == 1 and c is not None and c < TARGETS["min_closed"]:
+                v = verdict_at(r, dk)
+                what = "named nothing" if not v else "named right" if v == r["truth"] else f"named {v}"
+                lines.append(f"  {r['plant']:<28} {r['truth'][0]:<12} closed {c:>5.0%}  {what}")
     return "\n".join(lines) if lines else "  none"
 
 

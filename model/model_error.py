@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbridge.model._jit import njit
+from warpbridge.model.effects import play
 
 FORMAT = "warpbridge-model-error/1"
 FEATURE_SETS = ("level", "branch", "transition", "rate", "memory", "play")  # nested: each adds to the previous
@@ -94,23 +95,13 @@ def travel_since_reversal(x, eps):
     return s, d, a
 
 
-@njit(cache=True)
-def play_states(x, thresholds):
+def play_states(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """Normalised play-operator states (x - p_r) / r in [-1, 1] per sample (rows) and threshold r (columns);
-    each play starts relaxed at the first sample."""
-    n = x.shape[0]
-    m = thresholds.shape[0]
-    out = np.empty((n, m))
-    for j in range(m):
-        r = thresholds[j]
-        p = x[0]
-        for k in range(n):
-            v = x[k]
-            if v - r > p:
-                p = v - r
-            elif v + r < p:
-                p = v + r
-            out[k, j] = (v - p) / r
+    each play (``model.effects.play`` of total width 2 r) starts relaxed at the first sample."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    out = np.empty((x.size, len(thresholds)))
+    for j, r in enumerate(thresholds):
+        out[:, j] = (x - play(x, 2.0 * float(r), float(x[0]))) / r
     return out
 
 
