@@ -205,7 +205,9 @@ def short_closures(results: list[dict], folds: dict) -> str:
             if len(r["truth"]) == 1 and c is not None and c < TARGETS["min_closed"]:
                 v = verdict_at(r, dk)
                 what = "named nothing" if not v else "named right" if v == r["truth"] else f"named {v}"
-                lines.append(f"  {r['plant']:<28} {r['truth'][0]:<12} closed {c:>5.0%}  {what}")
+                chk = (f"  (the model misses the check log by {r['check_rms_nominal']:.2f} deg with the effect, "
+                       f"{r['check_rms_nominal_without_effects']:.2f} without it)")
+                lines.append(f"  {r['plant']:<28} {r['truth'][0]:<12} closed {c:>5.0%}  {what:<14}{chk}")
     return "\n".join(lines) if lines else "  none"
 
 

@@ -23,7 +23,12 @@ linear combination of features of where the hysteresis is::
   tendon travel, thresholds r from 1 % to 30 % of the span, alone and times
   the level P1 (a Prandtl-Ishlinskii correction: the memory of friction spread
   along a sheath, which one Bouc-Wen state cannot hold, wipes out like a
-  stack of plays).
+  stack of plays);
+- lag: the model's warp through first-order lags of 10, 30 and 100 ms, less
+  the warp itself, over the time constant (a low-order linear dynamic model
+  of the servo, link and sensor the bench shares with the field: the rate
+  set is only its first-order Taylor term, and a latency of tens of ms over
+  a fast bench input needs more).
 
 Nested feature sets and a ridge penalty are chosen by blocked cross-validation
 on the bench log, so noise is not learned as structure; the cross-validated
@@ -42,14 +47,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbridge.model._jit import njit
-from warpbridge.model.effects import play
+from warpbridge.model.effects import lagged, play
 
 FORMAT = "warpbridge-model-error/1"
-FEATURE_SETS = ("level", "branch", "transition", "rate", "memory", "play")  # nested: each adds to the previous
+FEATURE_SETS = ("level", "branch", "transition", "rate", "memory", "play", "lag")  # nested: each adds to the previous
 TRANSITION_LENGTHS = (0.01, 0.03, 0.1, 0.3)  # of the tendon span
 MEMORY_LENGTHS = (0.05, 0.2, 0.6)  # of the previous leg
 PLAY_THRESHOLDS = (0.01, 0.03, 0.06, 0.1, 0.15, 0.22, 0.3)  # of the tendon span
-SET_COLUMNS = {"level": 4, "branch": 3, "transition": 4, "rate": 2, "memory": 5, "play": 2 * len(PLAY_THRESHOLDS)}
+LAG_TIMES_S = (0.01, 0.03, 0.1)
+SET_COLUMNS = {"level": 4, "branch": 3, "transition": 4, "rate": 2, "memory": 5, "play": 2 * len(PLAY_THRESHOLDS),
+               "lag": len(LAG_TIMES_S)}
 DEADBAND = 0.005  # of the tendon span: smaller wiggles are not reversals
 RIDGES = (1e-6, 1e-4, 1e-2, 1.0)  # penalty relative to the mean diagonal of the normal equations
 FOLDS = 5
@@ -109,8 +116,19 @@ def _plays(x: np.ndarray, x_span: float) -> np.ndarray:
     return play_states(x, np.asarray(PLAY_THRESHOLDS, dtype=np.float64) * x_span)
 
 
+def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float) -> np.ndarray:
+    """(lag_tau(w) - w) / (rate_scale tau) per sample (rows) and time constant tau of ``LAG_TIMES_S`` (columns);
+    each lag starts settled on the first sample (about -w' / rate_scale for slow motion)."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    out = np.empty((w.size, len(LAG_TIMES_S)))
+    for j, tau in enumerate(LAG_TIMES_S):
+        out[:, j] = (lagged(t, w, tau, float(w[0])) - w) / (rate_scale * tau)
+    return out
+
+
 @njit(cache=True)
-def _correction(x, w, v, q, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
+def _correction(x, w, v, q, g, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
     n = x.shape[0]
     out = np.empty(n)
     eps = DEADBAND * x_span
@@ -148,6 +166,10 @@ def _correction(x, w, v, q, theta, w_center, w_scale, x_span, nsets, trans_l, me
             for i in range(q.shape[1]):
                 acc += theta[j] * q[k, i] + theta[j + 1] * q[k, i] * h
                 j += 2
+        if nsets >= 7:
+            for i in range(g.shape[1]):
+                acc += theta[j] * g[k, i]
+                j += 1
         out[k] = acc
     return out
 
@@ -200,7 +222,8 @@ class ErrorModel:
         v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
         x = np.ascontiguousarray(x, dtype=np.float64)
         q = _plays(x, self.x_span) if nsets >= 6 else np.zeros((w.size, 0))
-        return _correction(x, w, v, q, self.theta, self.w_center,
+        g = lag_states(t, w, self.rate_scale) if nsets >= 7 else np.zeros((w.size, 0))
+        return _correction(x, w, v, q, g, self.theta, self.w_center,
                            self.w_scale, self.x_span, nsets, np.array(TRANSITION_LENGTHS),
                            np.array(MEMORY_LENGTHS))
 
@@ -279,6 +302,9 @@ def design(t, x, w, w_center: float, w_scale: float, x_span: float, rate_scale: 
             q = _plays(x, x_span)
             for i in range(q.shape[1]):
                 cols += [q[:, i], q[:, i] * h]
+        elif name == "lag":
+            g = lag_states(t, w, rate_scale)
+            cols += [g[:, i] for i in range(g.shape[1])]
     if not cols:
         return np.zeros((t.size, 0))
     return np.column_stack(cols)
