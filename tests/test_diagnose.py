@@ -381,3 +381,23 @@ def test_sensitivity_reports_the_verdict_under_each_decision(tmp_path):
     assert len(alts) == len(DECISION_GRID)
     default = next(a for a in alts if a["decision"] == rep["decision"])
     assert default["verdict"] == rep["verdict"] == ["drift"]
+
+
+def test_a_nominal_that_leaves_its_monotone_range_still_gets_candidates_judged_against_it():
+    # the input goes past the paper model's turning point (u is largest near 17 deg) on a few percent of the log:
+    # the nominal saturates there, as `predict` would run it; candidates near it saturate just as much and must
+    # still be judged (they were all rejected), and output-side ones must reuse the nominal however many
+    # candidates were tried in between
+    t = np.arange(int(DURATION * FS)) / FS
+    w_ref = filtered_random(t, 1.0, 4.5, 7.0, seed=5)
+    u, _ = inverse(P, w_ref)
+    u = u + np.where(np.sin(2 * np.pi * t / DURATION) > 0.97, 6.0, 0.0) * np.sin(np.pi * t) ** 2
+    eff = Effects(drift_deg_s=0.02)
+    _, w = Plant(P, eff).simulate(t, u)
+    w = w + NOISE * np.random.default_rng(6).standard_normal(t.size)
+    prob = Problem(t, u, w, None, P, Effects())
+    for d in np.linspace(0.005, 0.05, 10):  # more candidates than the cache holds
+        assert np.all(np.isfinite(prob.predict(Effects(delay_s=float(d)))))
+    fit = prob.fit(("drift",))
+    assert math.isfinite(fit.score_mse)
+    assert fit.effects.drift_deg_s == pytest.approx(0.02, rel=0.2)
