@@ -278,7 +278,7 @@ class Problem:
         self._pinned: tuple[tuple, np.ndarray] | None = None
         if not np.all(np.isfinite(self.core(effects))):
             self._core.clear()
-            self._extra_flags = self._flags(p, x)
+            self._extra_flags = max(self._grid_run(p, x, capped=False)[0], 0)
             w_nom = self.core(effects)
             if not np.all(np.isfinite(w_nom)):  # run uncapped, exactly as ``predict`` would
                 w_nom = self._corrected(x, forward(p, x, z0=self.z0)[0])
@@ -317,30 +317,25 @@ class Problem:
         p = self._core_params(eff)
         self.evaluations += 1
         w = np.empty_like(x)
-        idx = travel_grid(x, self.travel_step) if self.travel_step > 0 else np.arange(x.size)
-        xk = np.ascontiguousarray(x[idx])
-        wk = np.empty_like(xk)
-        zk = np.empty_like(xk)
-        cap = max(10, int(MAX_SATURATED * xk.size)) + self._extra_flags
-        z0 = self.z0_for(p, x)
-        if (self._check_reach and not _reachable(p, x)) or forward_run_capped(
-                p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0, wk, zk, cap) < 0:
+        if (self._check_reach and not _reachable(p, x)) or (run := self._grid_run(p, x, capped=True))[0] < 0:
             w[:] = np.nan  # beyond the model's monotone range: not a candidate
         else:
-            fill_along_travel(x, idx, wk, w)
+            fill_along_travel(x, run[1], run[2], w)
         w = self._corrected(x, w)
         self._core[key] = w
         if len(self._core) > 8:
             self._core.popitem(last=False)  # (the nominal may go too: it is only needed once)
         return w
 
-    def _flags(self, p: BoucWenParams, x: np.ndarray) -> int:
-        """Samples of the compressed path on which the core leaves the model's monotone range."""
+    def _grid_run(self, p: BoucWenParams, x: np.ndarray, capped: bool) -> tuple[int, np.ndarray, np.ndarray]:
+        """(samples of the compressed path beyond the model's monotone range, or -1 once past the candidates'
+        allowance when ``capped``; the path's indices; the core warp on them)."""
         idx = travel_grid(x, self.travel_step) if self.travel_step > 0 else np.arange(x.size)
         xk = np.ascontiguousarray(x[idx])
         wk, zk = np.empty_like(xk), np.empty_like(xk)
+        cap = max(10, int(MAX_SATURATED * xk.size)) + self._extra_flags if capped else xk.size
         z0 = self.z0_for(p, x)
-        return max(forward_run_capped(p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0, wk, zk, xk.size), 0)
+        return forward_run_capped(p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0, wk, zk, cap), idx, wk
 
     def _lag(self, x: np.ndarray, tau: float) -> np.ndarray:
         if tau > 0:
