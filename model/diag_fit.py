@@ -29,7 +29,8 @@ A candidate that drives the log beyond the model's monotone range is not
 one, judged against the nominal: when the nominal itself leaves that range
 on the log (a wing the model does not carry over to), a candidate may leave
 it as often as the nominal does, and output-side candidates reuse the
-nominal's own run (uncapped, as ``predict`` runs it, if it must be).
+nominal's own run, which is kept for the whole search (uncapped, as ``predict``
+runs it, if it must be).
 """
 
 from __future__ import annotations
@@ -276,13 +277,14 @@ class Problem:
         self._extra_flags = 0
         self._check_reach = _reachable(p, x)
         self._pinned: tuple[tuple, np.ndarray] | None = None
-        if not np.all(np.isfinite(self.core(effects))):
+        w_nom = self.core(effects)
+        if not np.all(np.isfinite(w_nom)):
             self._core.clear()
             self._extra_flags = max(self._grid_run(p, x, capped=False)[0], 0)
             w_nom = self.core(effects)
             if not np.all(np.isfinite(w_nom)):  # run uncapped, exactly as ``predict`` would
                 w_nom = self._corrected(x, forward(p, x, z0=self.z0)[0])
-            self._pinned = (self._key(effects), w_nom)  # never evicted: output-side candidates reuse it
+        self._pinned = (self._key(effects), w_nom)  # never evicted: every output-side candidate reuses it
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
@@ -307,7 +309,7 @@ class Problem:
     def core(self, eff: Effects) -> np.ndarray:
         """Bouc-Wen forward warp for the input-side effects and friction of ``eff`` (cached)."""
         key = self._key(eff)
-        if self._pinned is not None and key == self._pinned[0]:
+        if self._pinned is not None and key == self._pinned[0]:  # (None only while the nominal is computed)
             return self._pinned[1]
         hit = self._core.get(key)
         if hit is not None:
@@ -324,7 +326,7 @@ class Problem:
         w = self._corrected(x, w)
         self._core[key] = w
         if len(self._core) > 8:
-            self._core.popitem(last=False)  # (the nominal may go too: it is only needed once)
+            self._core.popitem(last=False)
         return w
 
     def _grid_run(self, p: BoucWenParams, x: np.ndarray, capped: bool) -> tuple[int, np.ndarray, np.ndarray]:

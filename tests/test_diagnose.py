@@ -392,6 +392,7 @@ def test_a_nominal_that_leaves_its_monotone_range_still_gets_candidates_judged_a
     w_ref = filtered_random(t, 1.0, 4.5, 7.0, seed=5)
     u, _ = inverse(P, w_ref)
     u = u + np.where(np.sin(2 * np.pi * t / DURATION) > 0.97, 6.0, 0.0) * np.sin(np.pi * t) ** 2
+    assert forward(P, u)[2] > 0.01 * t.size  # the premise: the model itself is held at its edge here
     eff = Effects(drift_deg_s=0.02)
     _, w = Plant(P, eff).simulate(t, u)
     w = w + NOISE * np.random.default_rng(6).standard_normal(t.size)
