@@ -13,12 +13,14 @@ samples it covers.
 1. Each log, its own held-out last quarter (what ``identify`` reports), and whether
    ``identify`` says the data support the model.
 2. The other logs of the same condition, predicted whole from their first sample
-   (z0 estimated from it): the three sine amplitudes of sheath configuration 0
-   (``conf0_A.txt``, 2 kHz logger, decimated to 500 Hz); for the bend series
+   (z0 estimated from it), with the model-error correction and without it: the
+   three sine amplitudes of sheath configuration 0 (``conf0_A.txt``, 2 kHz logger,
+   decimated to 500 Hz); for the bend series
    (``N.txt``, one log per bend) the other half of the same file, both ways.
 3. ``0.txt``, first 2000 rows (the published baseline's segment): mean squared
    error over the training part, the held-out part and the whole segment, with the
-   initial state estimated and at rest (z0 = 0, what ``predict`` did before).
+   initial state estimated (the bare model, as the published fits are, and with the
+   model-error correction of ``predict --correction``) and at rest (z0 = 0).
 Run: python benchmarks/bench_realdata_identify.py [DATA_DIR]
 """
 
@@ -93,13 +95,15 @@ class Bench:
         self.models[name] = (model, fit, np.array([c0, c1]), wall)
         return fit, wall
 
-    def predict(self, name: str, rows: np.ndarray, tag: str) -> np.ndarray:
+    def predict(self, name: str, rows: np.ndarray, tag: str, corrected: bool = False) -> np.ndarray:
+        """``warpbridge predict`` (with ``--correction``: plus the model-error correction the model carries)."""
         log = write(rows, self.tmp / f"{tag}.csv")
         out = self.tmp / f"{tag}.pred.csv"
         with open(os.devnull, "w") as null:
             stdout, sys.stdout = sys.stdout, null
             try:
-                assert self.cli(["predict", str(log), "--model", str(self.models[name][0]), "-o", str(out)]) == 0
+                argv = ["predict", str(log), "--model", str(self.models[name][0]), "-o", str(out)]
+                assert self.cli(argv + (["--correction"] if corrected else [])) == 0
             finally:
                 sys.stdout = stdout
         return np.loadtxt(out, delimiter=",", skiprows=1)[:, 1]
@@ -138,7 +142,7 @@ def main(data: Path) -> None:
           f"{statistics.median(walls):.1f} s, max {max(walls):.1f} s")
 
     # 2. the other logs of the same condition, whole, from their first sample
-    rows2, wins2, n2 = [], 0, 0
+    rows2, wins2, n2, corr_vs_bare = [], 0, 0, []
     for a in AMPLITUDES:
         name = f"conf0_{a}.txt"
         for other in AMPLITUDES:
@@ -146,10 +150,13 @@ def main(data: Path) -> None:
                 continue
             d = logs[f"conf0_{other}.txt"]
             pred = b.predict(name, d, f"conf0_{a}_on_{other}")
+            corr = b.predict(name, d, f"conf0_{a}_on_{other}_corr", corrected=True)
             g, ln = rms(pred - d[:, 2]), rms(b.line(name, d[:, 1]) - d[:, 2])
             late = d[:, 0] >= d[0, 0] + 1.0
             g1 = rms(pred[late] - d[late, 2])
-            rows2.append([f"conf0 +-{a} deg", f"conf0 +-{other} deg (all {d.shape[0]})", g, g1, ln])
+            rows2.append([f"conf0 +-{a} deg", f"conf0 +-{other} deg (all {d.shape[0]})", g, g1,
+                          rms(corr - d[:, 2]), ln])
+            corr_vs_bare.append(rms(corr - d[:, 2]) - g)
             wins2 += g < ln
             n2 += 1
     for n in BENDS:
@@ -161,22 +168,29 @@ def main(data: Path) -> None:
             b.identify(name, part)
             other_name, other = list(parts.items())[1 - k]
             pred = b.predict(name, other, f"{n}_{k}_on_other")
+            corr = b.predict(name, other, f"{n}_{k}_on_other_corr", corrected=True)
             g, ln = rms(pred - other[:, 2]), rms(b.line(name, other[:, 1]) - other[:, 2])
             late = other[:, 0] >= other[0, 0] + 1.0
             rows2.append([f"{n}.txt {which}", f"{n}.txt {other_name} (all {other.shape[0]})", g,
-                          rms(pred[late] - other[late, 2]), ln])
+                          rms(pred[late] - other[late, 2]), rms(corr - other[:, 2]), ln])
+            corr_vs_bare.append(rms(corr - other[:, 2]) - g)
             wins2 += g < ln
             n2 += 1
     print()
     print("2. Predicted on the other logs of the same condition, whole (z0 estimated from their first samples); "
           "the line is fitted on the same training samples as the model (RMS, deg)")
-    print(table(rows2, ["identified on", "predicted (samples)", "GBW all", "GBW after 1 s", "line all"]))
-    print(f"GBW beats the line on {wins2}/{n2} other logs")
+    print(table(rows2, ["identified on", "predicted (samples)", "GBW all", "GBW after 1 s",
+                        "GBW all, predict --correction", "line all"]))
+    dv = np.array(corr_vs_bare)
+    print(f"GBW beats the line on {wins2}/{n2} other logs; against the bare model, predict --correction is better "
+          f"on {int(np.sum(dv < -1e-9))}, worse on {int(np.sum(dv > 1e-9))} and the same on "
+          f"{int(np.sum(abs(dv) <= 1e-9))} (no correction learned)")
 
     # 3. the published baseline's segment
     seg = load(data / "0.txt", 1, 3, max_rows=2000)
     fit, _ = b.identify("zero2000", seg)
     pred = b.predict("zero2000", seg, "zero2000_self")
+    corrected = b.predict("zero2000", seg, "zero2000_corrected", corrected=True)
     t = seg[:, 0]
     train, held = t < fit["split_time_s"], t >= fit["split_time_s"]
     late = t >= t[0] + 1.1
@@ -184,19 +198,18 @@ def main(data: Path) -> None:
 
     p = BoucWenParams.from_dict(json.loads((tmp / "zero2000.json").read_text())["params"])
     at_rest = forward(p, seg[:, 1])[0]
-    e, e0 = pred - seg[:, 2], at_rest - seg[:, 2]
+    errs = [pred - seg[:, 2], corrected - seg[:, 2], at_rest - seg[:, 2]]
     print()
     print(f"3. 0.txt, first 2000 rows ({seg.shape[0]} after merging repeated timestamps, t = {t[0]:.2f}-{t[-1]:.2f} s);"
           " published classic Bouc-Wen MSE 0.72-0.78 deg^2 (SLSQP/BFGS/NM), 3.1 (GA)")
-    print(table([
-        ["training part", f"t < {fit['split_time_s']:.2f} s ({int(train.sum())})", float(np.mean(e[train] ** 2)),
-         float(np.mean(e0[train] ** 2))],
-        ["held-out part", f"t >= {fit['split_time_s']:.2f} s ({int(held.sum())})", float(np.mean(e[held] ** 2)),
-         float(np.mean(e0[held] ** 2))],
-        ["whole segment", f"all ({t.size})", float(np.mean(e ** 2)), float(np.mean(e0 ** 2))],
-        ["whole segment after 1.1 s", f"t >= {t[0] + 1.1:.2f} s ({int(late.sum())})", float(np.mean(e[late] ** 2)),
-         float(np.mean(e0[late] ** 2))],
-    ], ["part", "samples", "GBW MSE deg^2 (z0 estimated)", "GBW MSE deg^2 (z0 = 0)"]))
+    parts = [("training part", f"t < {fit['split_time_s']:.2f} s", train),
+             ("held-out part", f"t >= {fit['split_time_s']:.2f} s", held),
+             ("whole segment", "all", np.ones(t.size, bool)),
+             ("whole segment after 1.1 s", f"t >= {t[0] + 1.1:.2f} s", late)]
+    print(table([[part, f"{cover} ({int(m.sum())})", *(float(np.mean(e[m] ** 2)) for e in errs)]
+                 for part, cover, m in parts],
+                ["part", "samples", "GBW MSE deg^2 (z0 estimated)", "with predict --correction",
+                 "GBW MSE deg^2 (z0 = 0)"]))
     print(f"load average at end {os.getloadavg()[0]:.1f}")
 
 

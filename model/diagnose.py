@@ -46,7 +46,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from warpbridge.model.boucwen import forward
 from warpbridge.model.diag_fit import Fit, Problem, Split
 from warpbridge.model.diag_stats import (
     PairedGain,
@@ -61,14 +60,12 @@ from warpbridge.model.effects import (
     EFFECT_FIELDS,
     EFFECT_NAMES,
     Effects,
-    apply_input_effects,
-    apply_output_effects,
-    core_params,
 )
 from warpbridge.model.identify import noise_floor
-from warpbridge.model.initial_state import estimate_z0
+from warpbridge.model.initial_state import estimate_plant_z0
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
+from warpbridge.model.plant import Plant
 
 log = logging.getLogger(__name__)
 
@@ -203,19 +200,7 @@ def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
 
 def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) -> float:
     """z0 that explains the log's first samples with the model, its effects and its error correction."""
-    eff = model.effects
-    p = core_params(model.params, eff)
-    x = apply_input_effects(eff, t, u)
-    if not eff.active() and em is None:
-        return estimate_z0(p, x, w)
-
-    def simulate(z0: float, n: int) -> np.ndarray:
-        wc = forward(p, x[:n], z0=z0)[0]
-        if em is not None:
-            wc = wc + em.correction(t[:n], x[:n], wc)
-        return apply_output_effects(eff, t[:n], wc, None if airspeed is None else airspeed[:n])[1]
-
-    return estimate_z0(p, x, w, simulate=simulate)
+    return estimate_plant_z0(Plant(model.params, model.effects, em), t, u, w, airspeed)
 
 
 class Explorer:

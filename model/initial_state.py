@@ -154,15 +154,15 @@ def estimate_z0(params: BoucWenParams, u, w, *,
 
 
 def estimate_plant_z0(plant, t, u, w, airspeed=None, *, opening: int | None = None) -> float:
-    """``estimate_z0`` for a ``model.plant.Plant`` with effects: the algebraic value from the core
-    model on the input the sheath sees, refined by simulating the whole effects chain."""
+    """``estimate_z0`` for a ``model.plant.Plant`` with effects or an error correction: the algebraic value
+    from the core model on the input the sheath sees, refined by simulating the whole chain."""
     from warpbridge.model.effects import apply_input_effects
 
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     if u.size == 0:
         return 0.0
-    if not plant.effects.active():
+    if not plant.effects.active() and plant.error_model is None:
         return estimate_z0(plant.params, u, w, opening=opening)
     a = None if airspeed is None else np.asarray(airspeed, dtype=np.float64)
 

@@ -23,6 +23,7 @@ from warpbridge.model.effects import (
     drift_shape,
     dynamic_pressure_kpa,
 )
+from warpbridge.model.model_error import ErrorModel
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,7 @@ class Plant:
 
     params: BoucWenParams
     effects: Effects = field(default_factory=Effects)
+    error_model: ErrorModel | None = None  # the bench-learned correction added to the core's warp, if any
 
     def core_params(self) -> BoucWenParams:
         """Bouc-Wen parameters with pre-tension and friction folded in (``model.effects.core_params``)."""
@@ -46,6 +48,8 @@ class Plant:
             return np.empty(0), np.empty(0)
         x = apply_input_effects(self.effects, t, u)
         w, _, _ = forward(self.core_params(), x, z0=z0)
+        if self.error_model is not None and np.all(np.isfinite(w)):
+            w = w + self.error_model.correction(t, x, w)
         return apply_output_effects(self.effects, t, w, airspeed)
 
 
@@ -53,6 +57,9 @@ class PlantStepper:
     """Per-sample version of ``Plant.simulate`` (same operators, same order)."""
 
     def __init__(self, plant: Plant, t0: float, u0: float, z0: float = 0.0) -> None:
+        if plant.error_model is not None:
+            raise ValueError("the per-sample plant does not run a model-error correction (it needs whole-log "
+                             "features): simulate the log with Plant.simulate")
         self.plant = plant
         self._p = plant.core_params().to_array()
         e = plant.effects

@@ -205,3 +205,32 @@ def test_bench_dynamics_of_tens_of_ms_are_learned_by_the_lag_set():
     without = fit_error_model(t, u, w, w_meas, noise=noise, sets=FEATURE_SETS[:FEATURE_SETS.index("lag")])
     assert em.rms_before_deg > 5 * noise and without.known_error_deg > 0.5 * noise
     assert em.known_error_deg < 0.5 * without.known_error_deg
+
+
+def test_the_plant_adds_the_correction_to_the_core_before_the_sensor_and_the_drift():
+    # a correction that is a constant offset (level set, P0 only): the core's warp moves by it, and the
+    # sensor lag and the drift act on the corrected warp, not beside it
+    t, u, _ = _log(seconds=10.0)
+    em = ErrorModel(w_center=7.0, w_scale=4.5, x_span=5.0, rate_scale=10.0, sets=("level",),
+                    theta=np.array([0.3, 0.0, 0.0, 0.0]))
+    eff = Effects(sensor_tau_s=0.05, drift_deg_s=0.01)
+    _, bare = Plant(P).simulate(t, u)
+    _, with_fx = Plant(P, eff).simulate(t, u)
+    _, corrected = Plant(P, eff, em).simulate(t, u)
+    lag = np.empty_like(bare)
+    y = bare[0] + 0.3
+    for k in range(t.size):  # the lag of the corrected core written out, then the ramp
+        a = math.exp(-(t[k] - t[k - 1]) / 0.05) if k else 0.0
+        y = a * y + (1 - a) * (bare[k] + 0.3)
+        lag[k] = y
+    assert np.allclose(corrected, lag + 0.01 * (t - t[0]), atol=1e-9)
+    assert np.allclose(corrected - with_fx, 0.3, atol=1e-9)
+
+
+def test_the_per_sample_plant_refuses_a_correction_it_cannot_run():
+    from warpbridge.model.plant import PlantStepper
+
+    em = ErrorModel(w_center=7.0, w_scale=4.5, x_span=5.0, rate_scale=10.0, sets=("level",),
+                    theta=np.array([0.3, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="model-error correction"):
+        PlantStepper(Plant(P, Effects(), em), 0.0, 3.0)

@@ -1,7 +1,12 @@
 """``warpbridge predict LOG.csv --model MODEL.json -o PRED.csv``: warp the model predicts from the logged tendon input.
 
 Applies the model's effects (delay, rate limit, backlash, ..., sensor lag,
-drift, aero load with the log's airspeed). The hysteretic state at the start
+drift, aero load with the log's airspeed). ``--correction`` also adds the
+model-error correction ``identify`` learned from the bench residual (what the
+nominal model got wrong there; ``diagnose`` always judges a field log against
+it): it carries a bench's servo, link and sensor dynamics over to any log, but
+on measured data it can be worse than the bare model on another amplitude, so
+it is not the default. The hysteretic state at the start
 of the log is estimated from its first samples when it has measured warp
 (a log rarely starts at rest); otherwise MODEL.json's ``z0`` is used. Writes
 ``t,warp_pred``; if the log has measured warp, prints the RMS error over the
@@ -20,6 +25,7 @@ import numpy as np
 from warpbridge.bridge.commands.identify import check_outputs
 from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic
 from warpbridge.bridge.commands.modelio import load_model
+from warpbridge.model.plant import Plant
 
 SETTLE_S = 5.0  # the RMS is also reported after this much of the log
 
@@ -30,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="CSV to write: t,warp_pred")
     p.add_argument("--wing", choices=("left", "right"), help="read this wing's columns of a bridge log")
     p.add_argument("--plot", help="PNG of the prediction against the logged warp (needs a warp column)")
+    p.add_argument("--correction", action="store_true",
+                   help="add the model-error correction MODEL.json carries (what the model got wrong on its bench "
+                        "log, as diagnose uses it)")
 
 
 def _rms(e: np.ndarray) -> float:
@@ -50,7 +59,15 @@ def main(args: argparse.Namespace) -> int:
     has_warp = data.warp is not None and np.isfinite(data.warp).any()
     if args.plot and not has_warp:
         print("note: the log has no measured warp: --plot skipped", file=sys.stderr)
-    plant = mf.plant
+    em = mf.model_error if args.correction else None
+    if args.correction and em is None:
+        em_note = "no model-error correction (the model file carries none)"
+    elif em is not None:
+        em_note = (f"model-error correction added ({', '.join(em.sets)}; bench RMS {em.rms_before_deg:.4f} -> "
+                   f"{em.rms_after_deg:.4f} deg)")
+    else:
+        em_note = "bare model" + (" (--correction adds its model-error correction)" if mf.model_error else "")
+    plant = Plant(mf.params, mf.effects, em)
     if has_warp:
         z0 = estimate_plant_z0(plant, data.t, data.u, data.warp, data.airspeed)
         z0_note = f"initial state z0 = {z0:.4g} estimated from the log's first samples"
@@ -59,7 +76,7 @@ def main(args: argparse.Namespace) -> int:
         z0_note = f"initial state z0 = {z0:.4g} from the model file (no measured warp to estimate it from)"
     _, w_pred = plant.simulate(data.t, data.u, data.airspeed, z0=z0)
     write_csv_atomic(args.output, {"t": data.t, "warp_pred": w_pred})
-    print(f"wrote {args.output}: {len(data)} predictions; {z0_note}")
+    print(f"wrote {args.output}: {len(data)} predictions; {z0_note}; {em_note}")
     if has_warp:
         ok = np.isfinite(data.warp)
         late = ok & (data.t >= data.t[0] + SETTLE_S)
