@@ -154,9 +154,9 @@ def main(data: Path) -> None:
             g, ln = rms(pred - d[:, 2]), rms(b.line(name, d[:, 1]) - d[:, 2])
             late = d[:, 0] >= d[0, 0] + 1.0
             g1 = rms(pred[late] - d[late, 2])
-            rows2.append([f"conf0 +-{a} deg", f"conf0 +-{other} deg (all {d.shape[0]})", g, g1,
-                          rms(corr - d[:, 2]), ln])
-            corr_vs_bare.append(rms(corr - d[:, 2]) - g)
+            gc = rms(corr - d[:, 2])
+            rows2.append([f"conf0 +-{a} deg", f"conf0 +-{other} deg (all {d.shape[0]})", g, g1, gc, ln])
+            corr_vs_bare.append(gc - g)
             wins2 += g < ln
             n2 += 1
     for n in BENDS:
@@ -171,9 +171,10 @@ def main(data: Path) -> None:
             corr = b.predict(name, other, f"{n}_{k}_on_other_corr", corrected=True)
             g, ln = rms(pred - other[:, 2]), rms(b.line(name, other[:, 1]) - other[:, 2])
             late = other[:, 0] >= other[0, 0] + 1.0
+            gc = rms(corr - other[:, 2])
             rows2.append([f"{n}.txt {which}", f"{n}.txt {other_name} (all {other.shape[0]})", g,
-                          rms(pred[late] - other[late, 2]), rms(corr - other[:, 2]), ln])
-            corr_vs_bare.append(rms(corr - other[:, 2]) - g)
+                          rms(pred[late] - other[late, 2]), gc, ln])
+            corr_vs_bare.append(gc - g)
             wins2 += g < ln
             n2 += 1
     print()

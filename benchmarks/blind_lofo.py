@@ -257,4 +257,3 @@ def check_log_table(results: list[dict]) -> str:
         lines.append(f"{fam:<20} {len(v):>6} {np.median(v[:, 0]):>18.3f} {np.median(v[:, 1]):>10.3f} "
                      f"{np.median(v[:, 1] / v[:, 0]):>13.2f} {int(np.sum(v[:, 1] < v[:, 0])):>4}/{len(v):<3}")
     return "\n".join(lines)
-

@@ -294,9 +294,7 @@ class Problem:
         return core_params(self.params, eff)
 
     def _corrected(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
-        if self.error_model is None or not np.all(np.isfinite(w)):
-            return w
-        return w + self.error_model.correction(self.t, x, w)
+        return w if self.error_model is None else self.error_model.corrected(self.t, x, w)
 
     def z0_for(self, p: BoucWenParams, x: np.ndarray) -> float:
         """Initial state for a candidate's core: the nominal's, moved as the algebraic state moves."""

@@ -227,6 +227,12 @@ class ErrorModel:
                            self.w_scale, self.x_span, nsets, np.array(TRANSITION_LENGTHS),
                            np.array(MEMORY_LENGTHS))
 
+    def corrected(self, t, x, w) -> np.ndarray:
+        """The model's warp w plus its correction (w unchanged where the model left its range: NaN stays NaN)."""
+        if not np.all(np.isfinite(w)):
+            return w
+        return w + self.correction(t, x, w)
+
     def to_dict(self) -> dict:
         return {"format": FORMAT, "w_center": self.w_center, "w_scale": self.w_scale, "x_span": self.x_span,
                 "rate_scale": self.rate_scale, "sets": list(self.sets), "theta": [float(v) for v in self.theta],

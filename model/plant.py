@@ -48,8 +48,8 @@ class Plant:
             return np.empty(0), np.empty(0)
         x = apply_input_effects(self.effects, t, u)
         w, _, _ = forward(self.core_params(), x, z0=z0)
-        if self.error_model is not None and np.all(np.isfinite(w)):
-            w = w + self.error_model.correction(t, x, w)
+        if self.error_model is not None:
+            w = self.error_model.corrected(t, x, w)
         return apply_output_effects(self.effects, t, w, airspeed)
 
 

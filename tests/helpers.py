@@ -1,8 +1,10 @@
-"""Small helpers shared by the tests: free loopback ports and a hand-advanced clock."""
+"""Small helpers shared by the tests: free loopback ports, a hand-advanced clock, an independent two-stage filter."""
 
 from __future__ import annotations
 
 import socket
+
+import numpy as np
 
 # the loop-back servo and two wings on aileron output 1, the right one reversed: the tail of a test config
 LOOP_SERVO_WINGS = """[servo]
@@ -102,3 +104,17 @@ def run_to_end(cmd: list[str], **kwargs):
         out.seek(0)
         err.seek(0)
         return subprocess.CompletedProcess(cmd, proc.returncode, out.read(), err.read())
+
+
+def two_stage_lag(t: np.ndarray, w: np.ndarray, tau1: float, tau2: float, substeps: int = 20) -> np.ndarray:
+    """Two first-order stages (a servo's position loop, then a sensor), Euler-integrated finely in plain Python:
+    bench dynamics written independently of the model's own lag operator."""
+    y1 = y2 = float(w[0])
+    out = np.empty_like(w)
+    for k in range(w.size):
+        h = (t[k] - t[k - 1]) / substeps if k else 0.0
+        for _ in range(substeps if k else 0):
+            y1 += h * (w[k] - y1) / tau1
+            y2 += h * (y1 - y2) / tau2
+        out[k] = y2
+    return out

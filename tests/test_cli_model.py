@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import two_stage_lag
 
 from warpbridge.bridge.cli import main
 
@@ -195,20 +196,6 @@ def test_identify_records_whether_the_data_support_the_model(workdir, capsys):
     assert m["z0"] == 0.0 and "z0_start_of_log" in m["fit"]  # another log's start is estimated from that log
 
 
-def _slow_sensor(t: np.ndarray, w: np.ndarray, tau1: float, tau2: float) -> np.ndarray:
-    """A bench sensor of two first-order stages, Euler-integrated finely in plain Python (not the model's lag)."""
-    y1 = y2 = float(w[0])
-    out = np.empty_like(w)
-    for k in range(w.size):
-        n = 10 if k else 0
-        h = (t[k] - t[k - 1]) / 10 if k else 0.0
-        for _ in range(n):
-            y1 += h * (w[k] - y1) / tau1
-            y2 += h * (y1 - y2) / tau2
-        out[k] = y2
-    return out
-
-
 def test_predict_adds_the_bench_correction_the_model_carries_when_asked(tmp_path, capsys):
     # the bench's sensor has dynamics the rate-independent model lacks (40 + 15 ms): identify learns them as
     # model error, and predict --correction carries them to another excitation (a 0.5-3 Hz sweep)
@@ -217,7 +204,7 @@ def test_predict_adds_the_bench_correction_the_model_carries_when_asked(tmp_path
                        ("check", ["--duration", 20, "--excitation", "sweep", "--seed", 4])):
         assert run("simulate", "-o", tmp_path / f"{name}-clean.csv", "--rate", 200, "--noise", 0, *argv) == 0
         log = np.loadtxt(tmp_path / f"{name}-clean.csv", delimiter=",", skiprows=1)
-        log[:, 2] = _slow_sensor(log[:, 0], log[:, 2], 0.04, 0.015) + 0.03 * rng.standard_normal(len(log))
+        log[:, 2] = two_stage_lag(log[:, 0], log[:, 2], 0.04, 0.015, substeps=10) + 0.03 * rng.standard_normal(len(log))
         np.savetxt(tmp_path / f"{name}.csv", log[:, :3], delimiter=",", header="t,u,warp", comments="", fmt="%.9g")
     assert run("identify", tmp_path / "bench.csv", "-o", tmp_path / "model.json", "--quiet", "--maxiter", 60) == 0
     assert json.loads((tmp_path / "model.json").read_text())["model_error"]["sets"]

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import two_stage_lag
 
 from warpbridge.model.boucwen import BoucWenParams, inverse
 from warpbridge.model.effects import Effects
@@ -180,26 +181,13 @@ def test_a_short_bench_log_still_gets_the_sets_its_samples_support():
     assert em.rms_after_deg < 0.5 * em.rms_before_deg
 
 
-def _two_stage(t: np.ndarray, w: np.ndarray, tau1: float, tau2: float) -> np.ndarray:
-    """Two first-order stages (a servo's position loop, then a sensor), Euler-integrated finely, in plain Python."""
-    y1 = y2 = float(w[0])
-    out = np.empty_like(w)
-    for k in range(w.size):
-        h = (t[k] - t[k - 1]) / 20 if k else 0.0
-        for _ in range(20 if k else 0):
-            y1 += h * (w[k] - y1) / tau1
-            y2 += h * (y1 - y2) / tau2
-        out[k] = y2
-    return out
-
-
 def test_bench_dynamics_of_tens_of_ms_are_learned_by_the_lag_set():
     # the bench's servo and sensor: two stages of 25 and 12 ms on a fast input; the rate set is only the
     # first-order term of that, the lag set holds more of it
     t, u, _ = _log(seconds=40.0, fs=500.0, seed=12)
     _, w = Plant(P).simulate(t, u)
     noise = 0.02
-    w_meas = _two_stage(t, w, 0.025, 0.012) + noise * np.random.default_rng(13).standard_normal(t.size)
+    w_meas = two_stage_lag(t, w, 0.025, 0.012) + noise * np.random.default_rng(13).standard_normal(t.size)
     em = bench_error_model(P, Effects(), t, u, w_meas)
     assert em.sets[-1] == "lag"
     without = fit_error_model(t, u, w, w_meas, noise=noise, sets=FEATURE_SETS[:FEATURE_SETS.index("lag")])
