@@ -102,11 +102,12 @@ def _ok(val: float, target: float, higher: bool) -> str:
 
 def fold_table(folds: dict, seeds: list[int]) -> str:
     """Per held-out family and seed: the decision chosen without that family and the figures it gives."""
-    lines = [f"{'held-out family':<20} {'seed':>4}  {'decision chosen on the others':<32} {'singles exact':>14} "
+    lines = [f"{'held-out family':<20} {'seed':>4}  {'decision chosen on the others':<44} {'singles exact':>14} "
              f"{'pairs exact':>13} {'false alarms':>12} {'gap closed min / median':>24}"]
     for fam, (dk, rs) in folds.items():
         d = json.loads(dk)
-        dtxt = f"alpha {d['alpha']:g}, share {d['min_share']:g}, gain {d['min_gain']:g}"
+        dtxt = f"alpha {d['alpha']:g}, share {d['min_share']:g}, gain {d['min_gain']:g}" + (
+            ", parsimony" if d.get("parsimony") else "")
         for seed in [*seeds, None]:
             sub = [r for r in rs if seed is None or r["seed"] == seed]
             if not sub:
@@ -115,7 +116,7 @@ def fold_table(folds: dict, seeds: list[int]) -> str:
             gc = (f"{rt['min_closed']:.0%} / {rt['median_closed']:.0%}" if math.isfinite(rt["median_closed"])
                   else "-")
             lines.append(f"{fam if seed in (seeds[0], None) else '':<20} {seed if seed is not None else 'all':>4}  "
-                         f"{dtxt if seed == seeds[0] else '':<32} {_pct(rt['single_ok'], rt['singles']):>14} "
+                         f"{dtxt if seed == seeds[0] else '':<44} {_pct(rt['single_ok'], rt['singles']):>14} "
                          f"{_pct(rt['pair_ok'], rt['pairs']):>13} {_pct(rt['false_alarms'], rt['nones']):>12} "
                          f"{gc:>24}")
     return "\n".join(lines)

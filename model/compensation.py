@@ -7,8 +7,9 @@ the inverse of each static effect a MODEL.json may carry:
   (w_sp + c q) / (1 - g q), q the dynamic pressure of the current airspeed;
 - friction and pretension: folded into the model's parameters (``model.effects.core_params``: the
   band of z scaled, the backbone moved), which the inverse then runs;
-- backlash: the slack is taken up ahead of the motion (u +- width / 2 by the
-  direction of the last move, held through pauses).
+- backlash and the capstan stall of friction: the slack is taken up ahead of
+  the motion (u +- the play's half-width at the command, by the direction of
+  the last move, held through pauses).
 
 Delay, slew-rate limit and sensor lag cannot be undone causally without a
 prediction of the setpoint; they are left to the PI trim. Drift concerns the
@@ -35,21 +36,27 @@ def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float
     return (w_sp + effects.aero_deg_per_kpa * q) / k
 
 
-class BacklashInverse:
-    """Takes up a slack of ``width`` mm ahead of the motion: u +- width / 2 by the last direction."""
+class SlackInverse:
+    """Takes up the slack of the effects' play (``model.effects.slack_play``: backlash plus capstan stall)
+    ahead of the motion: the command x whose play edge in the last direction of motion is u."""
 
-    def __init__(self, width: float) -> None:
-        self.width = float(width)
+    def __init__(self, effects: Effects) -> None:
+        self.r0, self.pull, self.release, self.zero = effects.slack_args
+        self.active = effects.has_slack
         self._dir = 1.0
         self._prev: float | None = None
 
     def step(self, u: float) -> float:
-        if self.width <= 0.0:
+        if not self.active:
             return u
         if self._prev is not None and u != self._prev:
             self._dir = 1.0 if u > self._prev else -1.0
         self._prev = u
-        return u + self._dir * 0.5 * self.width
+        x = u + self._dir * self.r0  # at or below the slack travel only the fixed half-width is left
+        if x > self.zero:  # x - r0 - pull (x - zero) = u pulling, x + r0 + release (x - zero) = u releasing
+            c = self.pull if self._dir > 0 else -self.release
+            x = (x - c * self.zero) / (1.0 - c)
+        return x
 
 
 class Compensator:
@@ -58,12 +65,12 @@ class Compensator:
     def __init__(self, plant: Plant, w0: float = 0.0, z0: float = 0.0) -> None:
         self.plant = plant
         self.model = Stepper(plant.core_params(), w0=w0, z0=z0)
-        self.backlash = BacklashInverse(plant.effects.backlash_mm)
+        self.slack = SlackInverse(plant.effects)
 
     def step(self, w_sp: float, airspeed: float | None = None) -> float:
         u = self.model.inverse_step(aero_inverse(w_sp, self.plant.effects, airspeed))
-        return self.backlash.step(u)
+        return self.slack.step(u)
 
     def reset(self, w0: float = 0.0, z0: float = 0.0) -> None:
         self.model.reset(w0, z0)
-        self.backlash = BacklashInverse(self.plant.effects.backlash_mm)
+        self.slack = SlackInverse(self.plant.effects)

@@ -35,6 +35,7 @@ runs it, if it must be).
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections import OrderedDict
@@ -52,6 +53,7 @@ from warpbridge.model.effects import (
     core_params,
     drift_shape,
     dynamic_pressure_kpa,
+    form_fields,
     lagged,
 )
 from warpbridge.model.identify import reversal_indices, warmup_end
@@ -63,7 +65,8 @@ log = logging.getLogger(__name__)
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
-INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale")
+INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale",
+                "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm")
 
 
 # ---- the train / score split -------------------------------------------------------------------
@@ -125,6 +128,8 @@ class Box:
     hi: float
     log: bool = False
     neutral_at_hi: bool = False  # rate limit: the top of the box means "no limit"
+    neutral_at_lo: bool = False  # capstan ratio: the bottom of the box means "no stall" (0)
+    grid_like: str | None = None  # on the starting grid, take the coordinate of this (earlier) box
 
     def value(self, s: float) -> float:
         s = min(max(float(s), 0.0), 1.0)
@@ -134,6 +139,8 @@ class Box:
             v = self.lo + s * (self.hi - self.lo)
         if self.neutral_at_hi and s >= 1.0:
             return math.inf
+        if self.neutral_at_lo and s <= 0.0:
+            return 0.0
         return v
 
     def coord(self, v: float) -> float:
@@ -169,11 +176,23 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
         return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
     if name == "friction":
         return [Box("friction_scale", 0.2, 5.0, log=True)]
+    if name == "capstan":  # the second form of friction (``forms_for``): the stall's zero below the log's travel
+        return [Box("capstan_pull_ratio", 1e-4, 0.3, log=True, neutral_at_lo=True),
+                Box("capstan_zero_mm", lo_u - 2.0 * span, lo_u),
+                Box("capstan_release_ratio", 1e-4, 0.3, log=True, neutral_at_lo=True, grid_like="capstan_pull_ratio")]
     if name == "drift":  # from a zero still settling at the log's end (not a static offset) to a steady ramp
         return [Box("drift_tau_s", 0.25 * dur, 20.0 * dur, log=True, neutral_at_hi=True)]
     if name == "pretension":
         return [Box("pretension_offset_mm", -0.5 * span, 0.5 * span), Box("pretension_gain", 0.5, 2.0, log=True)]
     return []
+
+
+def forms_for(name: str, t: np.ndarray, u: np.ndarray) -> list[list[Box]]:
+    """The alternative forms of an effect, each a list of boxes; the fit keeps the form that fits best.
+    Friction has two: the band of z scaled, and the capstan stall (``model.effects``)."""
+    if name == "friction":
+        return [boxes_for("friction", t, u), boxes_for("capstan", t, u)]
+    return [boxes_for(name, t, u)]
 
 
 def _reachable(p: BoucWenParams, x: np.ndarray) -> bool:
@@ -216,6 +235,7 @@ class Fit:
     evaluations: int = 0
     coords: dict[str, float] = field(default_factory=dict)  # search coordinate in [0, 1] per nonlinear field
     boxes: list[Box] = field(default_factory=list, repr=False)
+    params_of: dict[str, int] = field(default_factory=dict)  # parameters each named effect's fitted form has
 
     def bound_hits(self, tol: float = 0.03) -> list[dict]:
         """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width)."""
@@ -224,8 +244,8 @@ class Fit:
             s = self.coords.get(b.field)
             if s is None:
                 continue
-            if b.neutral_at_hi and s >= 1.0:
-                continue  # "no limit" is a value, not a bound
+            if (b.neutral_at_hi and s >= 1.0) or (b.neutral_at_lo and s <= 0.0):
+                continue  # "no limit", "no stall" are values, not bounds
             for edge, hit, limit in (("lower", s <= tol, b.lo), ("upper", s >= 1.0 - tol, b.hi)):
                 if hit:
                     effect = next(n for n, (fs, _, _) in EFFECT_FIELDS.items() if b.field in fs)
@@ -235,11 +255,9 @@ class Fit:
 
 
     def values(self, names=None) -> dict[str, dict[str, float]]:
-        """{effect: {parameter: value}} of the named (default: fitted) effects."""
-        out = {}
-        for n in names or self.names:
-            out[n] = {f: _jsonable(getattr(self.effects, f)) for f in EFFECT_FIELDS[n][0]}
-        return out
+        """{effect: {parameter: value}} of the named (default: fitted) effects, in the form fitted."""
+        return {n: {f: _jsonable(getattr(self.effects, f)) for f in form_fields(n, self.effects)}
+                for n in names or self.names}
 
 
 def _jsonable(v: float) -> float | None:
@@ -409,12 +427,28 @@ class Problem:
         names = tuple(names)
         start = start or self.base
         movers = tuple(names if free_nonlinear is None else free_nonlinear)
-        boxes = [b for n in movers for b in boxes_for(n, self.t, self.u)]
         lin = tuple(f for n in names for f in linear_fields(n))
         if "aero_load" in names and self.q is None:
             raise ValueError("aero_load needs airspeed in the log")
-        n_params = sum(len(EFFECT_FIELDS[n][0]) for n in names)
         evals0 = self.evaluations
+        best: Fit | None = None
+        for forms in itertools.product(*(forms_for(n, self.t, self.u) for n in movers)):
+            f = self._fit_form(names, movers, forms, start, lin, max_evals, grid_for or names[-1])
+            if best is None or f.train_mse < best.train_mse:
+                best = f
+        best.evaluations = self.evaluations - evals0
+        return best
+
+    def _fit_form(self, names, movers, forms, start: Effects, lin, max_evals: int, grid_for: str) -> Fit:
+        """``fit`` with one form per moving effect; the fields of a mover's other forms go back to the nominal's."""
+        boxes = [b for form in forms for b in form]
+        own = {b.field for b in boxes}
+        reset = {f: getattr(self.base, f) for n in movers for f in EFFECT_FIELDS[n][0]
+                 if f not in own and f not in lin}
+        start = replace(start, **reset)
+        params_of = {n: len(EFFECT_FIELDS[n][0]) for n in names}
+        for n, form in zip(movers, forms, strict=True):
+            params_of[n] = len(form) + len(linear_fields(n))
         tm = self.split.train
 
         def build(s: np.ndarray) -> Effects:
@@ -426,19 +460,24 @@ class Problem:
 
         s0 = np.array([b.coord(getattr(start, b.field)) for b in boxes])
         if boxes:
-            s0 = self._grid_start(boxes, s0, cost, grid_for or names[-1], movers)
+            s0 = self._grid_start(boxes, s0, cost, grid_for, movers)
             if len(boxes) == 1:
                 s0 = self._brent(cost, s0)
             else:
                 s0 = self._nelder_mead(cost, s0, max_evals)
         eff, wp = self.solve_linear(build(s0), lin)
-        return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), n_params,
-                   self.evaluations - evals0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes)
+        return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), sum(params_of.values()),
+                   0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes, params_of)
 
     def _grid_start(self, boxes: list[Box], s0: np.ndarray, cost, grid_name: str, movers) -> np.ndarray:
-        idx = [i for i, b in enumerate(boxes) if b.field in EFFECT_FIELDS[grid_name][0]] if grid_name in movers else []
+        """The best point of a starting grid over the effect ``grid_name``'s parameters (13 points for one,
+        7 x 5 for two; a box ``grid_like`` another follows it instead of adding a dimension)."""
+        names = EFFECT_FIELDS[grid_name][0] if grid_name in movers else ()
+        idx = [i for i, b in enumerate(boxes) if b.field in names and b.grid_like is None]
         if not idx:
             return s0
+        pos = {b.field: i for i, b in enumerate(boxes)}
+        tied = [(i, pos[b.grid_like]) for i, b in enumerate(boxes) if b.field in names and b.grid_like is not None]
         if len(idx) == 1:
             pts = [np.array([g]) for g in np.linspace(0.0, 1.0, 13)]
         else:
@@ -448,6 +487,8 @@ class Problem:
         for p in pts:
             s = s0.copy()
             s[idx] = p
+            for i, j in tied:
+                s[i] = s[j]
             c = cost(s)
             if c < best_c:
                 best, best_c = s, c

@@ -80,8 +80,9 @@ SEPARATE: dict[frozenset, str] = {
                                         "when the tendon moves fast, a delay acts at every speed",
     frozenset({"sensor_lag", "rate_limit"}): "the same excitation at two speeds or amplitudes: a slew limit only "
                                              "bites on fast tendon motion, a sensor lag at every speed",
-    frozenset({"friction", "backlash"}): "minor loops of several sizes: backlash is a fixed dead band at every "
-                                         "reversal, friction scales the loop width with the excursion",
+    frozenset({"friction", "backlash"}): "minor loops of several sizes at several mean tendon positions: backlash is "
+                                         "a fixed dead band at every reversal, friction scales the loop width with "
+                                         "the excursion or grows the dead band with the tension",
     frozenset({"friction", "pretension"}): "several amplitudes around several mean tendon positions: pre-tension "
                                            "moves the curve and changes its slope, friction only widens the loop",
     frozenset({"backlash", "pretension"}): "small reversals at several positions: backlash acts at every "
@@ -115,18 +116,24 @@ class Decision:
     alpha: float = 0.05
     min_share: float = 0.1
     min_gain: float = 0.5
+    parsimony: bool = False  # of admitted candidates the held-out test cannot tell apart, name the fewest parameters
 
     def to_dict(self) -> dict:
-        return {"alpha": self.alpha, "min_share": self.min_share, "min_gain": self.min_gain}
+        d = {"alpha": self.alpha, "min_share": self.min_share, "min_gain": self.min_gain}
+        if self.parsimony:  # absent: False (the decisions before this switch keep their keys)
+            d["parsimony"] = True
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> Decision:
-        return cls(**{k: float(d[k]) for k in ("alpha", "min_share", "min_gain") if k in d})
+        kw: dict = {k: float(d[k]) for k in ("alpha", "min_share", "min_gain") if k in d}
+        return cls(**kw, parsimony=bool(d.get("parsimony", False)))
 
 
 # a small grid around the default, for ``alternatives`` (how the verdict depends on the decision)
 DECISION_GRID: tuple[Decision, ...] = tuple(
-    Decision(a, s, g) for a in (0.001, 0.01, 0.05) for s in (0.1, 0.25, 0.5) for g in (0.25, 0.5, 1.0, 2.0))
+    Decision(a, s, g, p) for p in (False, True) for a in (0.001, 0.01, 0.05) for s in (0.1, 0.25, 0.5)
+    for g in (0.25, 0.5, 1.0, 2.0))
 
 
 @dataclass
@@ -189,10 +196,6 @@ def known_error(model: ModelFile, noise: float, use_model_error: bool) -> float:
     return model_error(model.fit, noise)
 
 
-def _new_params(name: str) -> int:
-    return len(EFFECT_FIELDS[name][0])
-
-
 def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
     """``eff`` with effect ``name`` back at the nominal model's own value."""
     return replace(eff, **{f: getattr(base, f) for f in EFFECT_FIELDS[name][0]})
@@ -230,6 +233,11 @@ class Explorer:
         return (g.p_value < level and g.gain >= d.min_gain * self.floor2
                 and self.share(old, g.gain) >= d.min_share)
 
+    def ties(self, g: PairedGain, d: Decision) -> bool:
+        """True when the held-out gain ``g`` of one candidate over another is not significant at the ambiguity
+        level, or not material under ``d``: the two are equal explanations."""
+        return g.p_value > self.opt.ambiguity_alpha or g.gain < d.min_gain * self.floor2
+
     def fit_of(self, selected: tuple[str, ...]) -> Fit:
         if selected not in self.fits:
             self.round(selected[:-1])
@@ -266,7 +274,7 @@ class Explorer:
             f = fits[c]
             g = self.gain(cur, f)
             ok = f.score_mse > 0 and cur.score_mse > 0 and math.isfinite(f.score_mse)
-            pen = neff * math.log(cur.score_mse / f.score_mse) - 2 * _new_params(c) if ok else -math.inf
+            pen = neff * math.log(cur.score_mse / f.score_mse) - 2 * f.params_of[c] if ok else -math.inf
             judged.append(Judged(c, f, g, self.share(cur, g.gain), pen))
             self.fits[selected + (c,)] = f
         self.rounds[selected] = judged
@@ -339,6 +347,9 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         if not acc:
             break
         best = max(acc, key=lambda j: j.penalised)
+        if d.parsimony:  # the simplest of the equal explanations
+            equal = [j for j in acc if j is best or ex.ties(ex.gain(j.fit, best.fit), d)]
+            best = min(equal, key=lambda j: (j.fit.params_of[j.name], -j.penalised))
         if rnd == 0:
             # the runner-up gets a second round of its own only when it explains nearly as much (at least half
             # the winner's gain): only then can the winner be imitating it together with another effect
@@ -491,10 +502,18 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
 BOUND_CONFIDENCE = 0.5  # confidence factor of an effect whose fitted parameter sits at a bound of its search
 
 
+BOUND_HINTS = {  # what an edge of a search means where the generic reading does not hold
+    ("capstan_zero_mm", "lower"): "the stall hardly grows with the tension: a fixed dead band (backlash) may do "
+                                  "as well",
+    ("capstan_zero_mm", "upper"): "the tendon would go slack within the log's travel",
+}
+
+
 def _bound_meaning(h: dict) -> str:
+    hint = BOUND_HINTS.get((h["parameter"], h["bound"]),
+                           "the effect is larger than the model allows, or another effect is at work")
     return (f"{h['effect']}: {h['parameter']} sits at the {h['bound']} bound of its search ({h['limit']:.4g}): "
-            f"the effect is larger than the model allows, or another effect is at work; "
-            f"confidence halved")
+            f"{hint}; confidence halved")
 
 
 def _em_summary(em: ErrorModel | None, used: bool) -> dict:
@@ -532,13 +551,16 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         for j in acc:
             if j is best:
                 continue
-            g = ex.gain(j.fit, best.fit)  # is best better than j?
+            # is the better-scoring of the two better than the other? (best may be the simpler of equals)
+            worse, better = (j, best) if j.fit.score_mse >= best.fit.score_mse else (best, j)
+            g = ex.gain(worse.fit, better.fit)
             p = g.p_value
-            j.ambiguous_with_best = p > opt.ambiguity_alpha or g.gain < floor_gain
+            j.ambiguous_with_best = ex.ties(g, d)
             if j.ambiguous_with_best and g.gain < floor_gain and floor_gain > 0:
                 p = min(1.0, max(p, 0.5 * (1.0 - g.gain / floor_gain)))
-            j.confidence = support[j.name] * min(1.0, 2.0 * p)
-            best_conf = min(best_conf, support[best.name] * min(1.0, 2.0 * (1.0 - p)))
+            p_best = p if better is best else 1.0 - p  # chance that j is as good as best
+            j.confidence = support[j.name] * min(1.0, 2.0 * p_best)
+            best_conf = min(best_conf, support[best.name] * min(1.0, 2.0 * (1.0 - p_best)))
         best.confidence = best_conf
         if best.name in path.selected:
             chosen_conf[best.name] = best_conf

@@ -3,15 +3,18 @@
 Each effect of the design brief's table is one operator with one or two
 parameters, placed where it acts physically. The augmented plant is the chain::
 
-    u_cmd -> delay -> rate_limit -> backlash -> Bouc-Wen forward (pre-tension moves its backbone,
-          friction scales the band of z) -> aero_load -> w_true -> sensor_lag -> drift -> w_meas
+    u_cmd -> delay -> rate_limit -> slack (backlash + capstan stall) -> Bouc-Wen forward
+          (pre-tension moves its backbone, friction scales the band of z) -> aero_load -> w_true
+          -> sensor_lag -> drift -> w_meas
 
 | name        | parameters                     | operator                                             |
 |-------------|--------------------------------|------------------------------------------------------|
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
-| friction    | friction_scale                 | the loop widens or narrows about its middle          |
+| friction    | friction_scale                 | the loop widens or narrows about its middle, or      |
+|             | capstan_pull_ratio, _release_  | a stall at each reversal growing with the tension    |
+|             | ratio, capstan_zero_mm         |                                                      |
 | pretension  | pretension_offset_mm, _gain    | backbone u = offset + (a1 w^2 + a2 w + a3) / gain    |
 | sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
 | drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
@@ -24,6 +27,18 @@ so a stronger friction needs proportionally more travel to break away; the
 band is scaled about its middle (``a3`` moves by ``az (1 - s) z_mid``, z_mid
 halfway between the saturation levels of loading and unloading), so the
 centre line (the elastic backbone) stays where it was.
+
+A sheath with capstan friction has a second form of a friction change: after
+a reversal the far end stalls until the reversed slip has run along the whole
+sheath, and the travel that takes grows in proportion to the tension. That is
+a play (a dead band at every reversal) whose edges sit ``capstan_pull_ratio *
+s`` below the travel while pulling and ``capstan_release_ratio * s`` above it
+while releasing, s = max(x - capstan_zero_mm, 0), x the tendon travel and
+``capstan_zero_mm`` the travel at which the tendon goes slack. By the capstan
+law the two differ (the tension falls along the sheath one way when pulling and
+the other way when releasing). Backlash is the same play with a fixed half-width
+``backlash_mm / 2`` added to both edges. The diagnosis fits both forms of
+``friction`` and keeps the one that explains the log better.
 
 Pre-tension moves the elastic backbone and nothing else: the rig's rest
 position shifts by ``offset`` in tendon travel and its compliance scales by
@@ -61,7 +76,10 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "delay": (("delay_s",), (0.0,), "pure transport delay between command and tendon motion"),
     "rate_limit": (("rate_mm_s",), (math.inf,), "servo slew-rate limit"),
     "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
-    "friction": (("friction_scale",), (1.0,), "sheath friction changed: the hysteresis widens or narrows"),
+    "friction": (("friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm"),
+                 (1.0, 0.0, 0.0, 0.0),
+                 "sheath friction changed: the hysteresis widens or narrows, or a stall after each reversal "
+                 "grows with the tension"),
     "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
                    "pre-tension changed: the elastic backbone shifts in tendon travel and its slope scales"),
     "sensor_lag": (("sensor_tau_s",), (0.0,), "first-order lag in the warp measurement"),
@@ -79,6 +97,9 @@ class Effects:
     rate_mm_s: float = math.inf
     backlash_mm: float = 0.0
     friction_scale: float = 1.0
+    capstan_pull_ratio: float = 0.0  # stall while pulling, per mm of tendon travel above capstan_zero_mm
+    capstan_release_ratio: float = 0.0  # stall while releasing, per mm of the same travel
+    capstan_zero_mm: float = 0.0  # tendon travel at which the tendon goes slack (meaningless at ratio 0)
     pretension_offset_mm: float = 0.0
     pretension_gain: float = 1.0
     sensor_tau_s: float = 0.0
@@ -101,6 +122,23 @@ class Effects:
             raise ValueError("friction scale and pre-tension gain must be positive")
         if not self.drift_tau_s > 0:
             raise ValueError("drift time constant must be positive")
+        if not (0.0 <= self.capstan_pull_ratio < 1.0 and 0.0 <= self.capstan_release_ratio < 1.0):
+            raise ValueError("capstan ratios must be in [0, 1): the stall cannot outgrow the travel")
+        if not math.isfinite(self.capstan_zero_mm):
+            raise ValueError("capstan zero travel must be finite")
+        if self.capstan_pull_ratio == 0.0 and self.capstan_release_ratio == 0.0:  # where the tendon would go
+            # slack does not matter without a stall
+            object.__setattr__(self, "capstan_zero_mm", 0.0)
+
+    @property
+    def has_slack(self) -> bool:
+        """True when the input passes through a play (backlash, capstan stall or both)."""
+        return self.backlash_mm > 0 or self.capstan_pull_ratio > 0 or self.capstan_release_ratio > 0
+
+    @property
+    def slack_args(self) -> tuple[float, float, float, float]:
+        """(fixed half-width, pull ratio, release ratio, zero travel) of the play, for ``slack_play``."""
+        return 0.5 * self.backlash_mm, self.capstan_pull_ratio, self.capstan_release_ratio, self.capstan_zero_mm
 
     def active(self) -> list[str]:
         """Names of the effects whose parameters differ from neutral."""
@@ -153,6 +191,14 @@ class Effects:
                 except (TypeError, ValueError):
                     raise ValueError(f"effect parameter {f!r} must be a number") from None
         return cls(**kw)
+
+
+def form_fields(name: str, eff: Effects) -> tuple[str, ...]:
+    """The parameters of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its scale."""
+    if name == "friction":
+        capstan = eff.capstan_pull_ratio > 0 or eff.capstan_release_ratio > 0
+        return EFFECT_FIELDS[name][0][1:] if capstan else ("friction_scale",)
+    return EFFECT_FIELDS[name][0]
 
 
 def friction_core(params, scale: float):
@@ -254,17 +300,42 @@ def rate_limited(t, u, rate, y0):
 def play(u, width, y0):
     """Play (backlash) operator of total width ``width``: output moves only after the
     input has taken up the slack since the last reversal."""
+    return slack_play(u, 0.5 * width, 0.0, 0.0, 0.0, y0)
+
+
+@njit(cache=True)
+def slack_step(x, y, r0, pull, release, zero):
+    """One sample of ``slack_play``: the new output for input x and previous output y."""
+    s = x - zero
+    if s < 0.0:
+        s = 0.0
+    lo = x - r0 - pull * s
+    if lo > y:
+        return lo
+    hi = x + r0 + release * s
+    if hi < y:
+        return hi
+    return y
+
+
+@njit(cache=True)
+def slack_play(u, r0, pull, release, zero, y0):
+    """Play operator whose edges move away from the input as the travel above ``zero`` grows: the output
+    follows the input only at the edges u - r0 - pull s (pulling) and u + r0 + release s (releasing),
+    s = max(u - zero, 0)."""
     n = u.shape[0]
     out = np.empty(n)
-    r = 0.5 * width
     y = y0
     for k in range(n):
-        if u[k] - r > y:
-            y = u[k] - r
-        elif u[k] + r < y:
-            y = u[k] + r
+        y = slack_step(u[k], y, r0, pull, release, zero)
         out[k] = y
     return out
+
+
+def slack_start(eff: Effects, x0: float) -> float:
+    """The play's output at the first sample: the slack taken up by a pull (the tendon loaded)."""
+    r0, pull, _, zero = eff.slack_args
+    return x0 - r0 - pull * max(x0 - zero, 0.0)
 
 
 # ---- output-side operators (on warp, deg) ----------------------------------------------------
@@ -286,14 +357,14 @@ def lagged(t, w, tau, y0):
 
 
 def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash)."""
+    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash and capstan stall)."""
     x = np.ascontiguousarray(u, dtype=np.float64)
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
     if math.isfinite(eff.rate_mm_s):
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
-    if eff.backlash_mm > 0:
-        x = play(x, eff.backlash_mm, float(x[0]) - 0.5 * eff.backlash_mm)
+    if eff.has_slack:
+        x = slack_play(x, *eff.slack_args, slack_start(eff, float(x[0])))
     return x
 
 

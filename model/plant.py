@@ -22,6 +22,8 @@ from warpbridge.model.effects import (
     core_params,
     drift_shape,
     dynamic_pressure_kpa,
+    slack_start,
+    slack_step,
 )
 from warpbridge.model.model_error import ErrorModel
 
@@ -68,8 +70,8 @@ class PlantStepper:
         self._t0 = float(t0)
         self._u0 = float(u0)
         self._rate_y = float(u0)
-        self._play_y = float(u0) - 0.5 * e.backlash_mm
-        x0 = self._play_y if e.backlash_mm > 0 else float(u0)
+        self._play_y = slack_start(e, float(u0))
+        x0 = self._play_y if e.has_slack else float(u0)
         self.w = rest_warp(plant.core_params(), x0, z0)
         self.z = float(z0)
         self._zn = -1.0  # |z|^n carried between samples, as the array map does
@@ -102,12 +104,8 @@ class PlantStepper:
             d = min(max(x - self._rate_y, -step), step)
             self._rate_y += d
             x = self._rate_y
-        if e.backlash_mm > 0:
-            r = 0.5 * e.backlash_mm
-            if x - r > self._play_y:
-                self._play_y = x - r
-            elif x + r < self._play_y:
-                self._play_y = x + r
+        if e.has_slack:
+            self._play_y = slack_step(x, self._play_y, *e.slack_args)
             x = self._play_y
         w, z, zn, _ = K.forward_step_zn(self._p, self.w, self.z, self._zn, x)
         self.w, self.z, self._zn = float(w), float(z), float(zn)

@@ -97,7 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the lock-step comparison of all controller modes instead (fast)")
     parser.add_argument("--effects", default="",
                         help="unmodelled effects of the simulated wing, e.g. 'delay=0.03,backlash=0.2' "
-                             f"(names: {', '.join(EFFECT_FIELDS)}; two-parameter effects take a:b)")
+                             f"(names: {', '.join(EFFECT_FIELDS)}; effects with several parameters take a:b[:c...])")
     parser.add_argument("--model", type=Path, default=None,
                         help="MODEL.json the simulated wing follows (params and effects; default: the paper's)")
     parser.add_argument("--plant", choices=("bouc-wen", "sheath"), default="bouc-wen",

@@ -59,12 +59,12 @@ def tendon_range(params: BoucWenParams, w_max: float) -> float:
 class DriftingPretension(PlantStepper):
     """The plant with a time-varying pre-tension: u_eff = gain(t) (u - offset(t)).
 
-    The plant's own effects must not act before the pre-tension (no delay, rate limit, backlash)."""
+    The plant's own effects must not act before the pre-tension (no delay, rate limit, slack)."""
 
     def __init__(self, plant: Plant, t0: float, u0: float, offset: Callable[[float], float],
                  gain: Callable[[float], float]) -> None:
         e = plant.effects
-        if e.delay_s or math.isfinite(e.rate_mm_s) or e.backlash_mm:
+        if e.delay_s or math.isfinite(e.rate_mm_s) or e.has_slack:
             raise ValueError("a drifting pre-tension needs a plant without input-side effects before it")
         self.offset_at, self.gain_at = offset, gain
         neutral = Plant(plant.params, replace(e, pretension_offset_mm=0.0, pretension_gain=1.0))

@@ -236,13 +236,18 @@ def test_unknown_mode_is_refused():
         WingController(P, mode="pid")
 
 
-def test_a_model_files_aero_load_and_backlash_are_inverted_in_the_feed_forward():
-    """ff through an augmented model: the loaded, slack wing still reaches the setpoint."""
+@pytest.mark.parametrize("slack", [
+    {"backlash_mm": 0.3},
+    {"capstan_pull_ratio": 0.05, "capstan_release_ratio": 0.03, "capstan_zero_mm": -2.0},
+])
+def test_a_model_files_aero_load_and_slack_are_inverted_in_the_feed_forward(slack):
+    """ff through an augmented model: the loaded, slack (backlash, or capstan stall) wing still reaches the
+    setpoint."""
     from warpbridge.model.effects import Effects
     from warpbridge.model.excitation import filtered_random
     from warpbridge.model.plant import Plant, PlantStepper
 
-    effects = Effects(aero_gain_per_kpa=1.5, aero_deg_per_kpa=2.0, backlash_mm=0.3)
+    effects = Effects(aero_gain_per_kpa=1.5, aero_deg_per_kpa=2.0, **slack)
     t = np.arange(0, 10, 0.01)
     w_sp = filtered_random(t, 1.0, 3.0, offset=7.0, seed=5)
     v = 12.0

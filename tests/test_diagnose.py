@@ -402,3 +402,20 @@ def test_a_nominal_that_leaves_its_monotone_range_still_gets_candidates_judged_a
     fit = prob.fit(("drift",))
     assert math.isfinite(fit.score_mse)
     assert fit.effects.drift_deg_s == pytest.approx(0.02, rel=0.2)
+
+
+def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
+    """A capstan stall that hardly grows over the log's travel is a dead band of fixed width to the held-out
+    test: with parsimony the one-parameter backlash is named and friction reported as equally good; a stall
+    that clearly grows with the tension is still friction."""
+    from warpbridge.model.diagnose import Decision
+
+    flat = Effects(capstan_pull_ratio=0.004, capstan_release_ratio=0.004, capstan_zero_mm=-20.0)
+    growing = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=-5.0)
+    for eff, plain, parsimonious in ((flat, ["friction"], ["backlash"]), (growing, ["friction"], ["friction"])):
+        t, u, w, v = make_log(eff, seed=0)
+        for parsimony, want in ((False, plain), (True, parsimonious)):
+            d = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(parsimony=parsimony)))
+            assert d.verdict == want, (eff, parsimony, d.verdict)
+            equal = [set(a["equally_good"]) for a in d.report["ambiguities"]]
+            assert equal == ([{"friction", "backlash"}] if eff is flat else []), equal
