@@ -4,8 +4,10 @@
 effects it already carries, z0) and a blocked train/score split. It predicts
 the measured warp for any ``Effects`` with the same operators, in the same
 order, as ``model.plant.Plant.simulate``, and caches the expensive part (the
-Bouc-Wen forward map, which depends only on the input-side effects and the
-friction scale).
+Bouc-Wen forward map, which depends only on the input-side effects, the
+capstan stall among them, and the friction scale). An effect with several
+forms (friction: the band scaled, or the capstan stall; ``forms_for``) is
+fitted in each and the form with the lower training error kept.
 
 The output side is affine in the linear parameters (aero load gain and offset,
 drift), even through the sensor lag, which is a linear filter::
@@ -446,7 +448,7 @@ class Problem:
         reset = {f: getattr(self.base, f) for n in movers for f in EFFECT_FIELDS[n][0]
                  if f not in own and f not in lin}
         start = replace(start, **reset)
-        params_of = {n: len(EFFECT_FIELDS[n][0]) for n in names}
+        params_of = {n: len(form_fields(n, start)) for n in names}  # held effects: the form they carry
         for n, form in zip(movers, forms, strict=True):
             params_of[n] = len(form) + len(linear_fields(n))
         tm = self.split.train

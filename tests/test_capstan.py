@@ -1,5 +1,6 @@
 """The capstan form of friction: a stall at every reversal that grows with the tension, through the
-plant, the per-sample plant, the feed-forward, the model file, the effects switch and the diagnosis."""
+plant, the feed-forward, the model file, the effects switch and the diagnosis (the per-sample plant:
+tests/test_boucwen.py)."""
 
 from __future__ import annotations
 
@@ -39,17 +40,6 @@ def test_the_stall_after_a_reversal_grows_with_the_tension():
         # the travel it takes to break away after the reversal: (0.06 + 0.03) (peak + 2), more at more tension
         moved = np.flatnonzero(y[401:] < top - 1e-12)[0]
         assert peak - down[moved] == pytest.approx(0.09 * (peak + 2.0), abs=2 * peak / 400)
-
-
-def test_the_per_sample_plant_runs_the_same_stall():
-    e = Effects(backlash_mm=0.1, capstan_pull_ratio=0.04, capstan_release_ratio=0.02, capstan_zero_mm=1.0)
-    plant = Plant(P, e)
-    t = np.arange(0, 6, 1 / 500)
-    u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=4)
-    w_true, _ = plant.simulate(t, u)
-    s = PlantStepper(plant, t[0], u[0])
-    w_step = np.array([s.step(tk, uk)[0] for tk, uk in zip(t, u, strict=True)])
-    assert np.array_equal(w_step, w_true)
 
 
 @pytest.mark.parametrize("effects", [CAPSTAN, CAPSTAN.merged(Effects(backlash_mm=0.2))])
