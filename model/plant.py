@@ -70,6 +70,7 @@ class PlantStepper:
         self._t0 = float(t0)
         self._u0 = float(u0)
         self._rate_y = float(u0)
+        self._slack = e.slack_args  # fixed for the plant's life: not rebuilt every sample
         self._play_y = slack_start(e, float(u0))
         x0 = self._play_y if e.has_slack else float(u0)
         self.w = rest_warp(plant.core_params(), x0, z0)
@@ -105,7 +106,7 @@ class PlantStepper:
             self._rate_y += d
             x = self._rate_y
         if e.has_slack:
-            self._play_y = slack_step(x, self._play_y, *e.slack_args)
+            self._play_y = slack_step(x, self._play_y, *self._slack)
             x = self._play_y
         w, z, zn, _ = K.forward_step_zn(self._p, self.w, self.z, self._zn, x)
         self.w, self.z, self._zn = float(w), float(z), float(zn)
