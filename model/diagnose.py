@@ -506,8 +506,6 @@ BOUND_CONFIDENCE = 0.5  # confidence factor of an effect whose fitted parameter 
 
 
 BOUND_HINTS = {  # what an edge of a search means where the generic reading does not hold
-    ("capstan_zero_mm", "lower"): "the stall hardly grows with the tension: a fixed dead band (backlash) may do "
-                                  "as well",
     ("capstan_zero_mm", "upper"): "the tendon would go slack within the log's travel",
 }
 
