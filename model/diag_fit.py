@@ -56,7 +56,7 @@ from warpbridge.model.effects import (
     drift_shape,
     dynamic_pressure_kpa,
     form_fields,
-    lagged,
+    sensor_filtered,
 )
 from warpbridge.model.identify import reversal_indices, warmup_end
 from warpbridge.model.initial_state import algebraic_z0, reachable_band
@@ -167,7 +167,7 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
     if name == "delay":
         return [Box("delay_s", tmin, tmax, log=True)]
     if name == "sensor_lag":
-        return [Box("sensor_tau_s", tmin, tmax, log=True)]
+        return [Box("sensor_tau_s", tmin, tmax, log=True), Box("sensor_stage_ratio", 0.0, 1.0, neutral_at_lo=True)]
     if name == "rate_limit":
         dt = np.diff(t)
         rate = np.abs(np.diff(u)) / np.where(dt > 0, dt, np.inf)
@@ -248,15 +248,15 @@ class Fit:
     params_of: dict[str, int] = field(default_factory=dict)  # parameters each named effect's fitted form has
 
     def bound_hits(self, tol: float = 0.03) -> list[dict]:
-        """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width)."""
+        """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width). An edge
+        that means "no effect" (no limit, no stall, no second sensor stage) is a value, not a bound."""
         out = []
         for b in self.boxes:
             s = self.coords.get(b.field)
             if s is None:
                 continue
-            if (b.neutral_at_hi and s >= 1.0) or (b.neutral_at_lo and s <= 0.0):
-                continue  # "no limit", "no stall" are values, not bounds
-            for edge, hit, limit in (("lower", s <= tol, b.lo), ("upper", s >= 1.0 - tol, b.hi)):
+            for edge, hit, limit in (("lower", s <= tol and not b.neutral_at_lo, b.lo),
+                                     ("upper", s >= 1.0 - tol and not b.neutral_at_hi, b.hi)):
                 if hit:
                     effect = next(n for n, (fs, _, _) in EFFECT_FIELDS.items() if b.field in fs)
                     out.append({"effect": effect, "parameter": b.field, "bound": edge, "limit": limit,
@@ -365,27 +365,24 @@ class Problem:
         z0 = self.z0_for(p, x)
         return forward_run_capped(p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0, wk, zk, cap), idx, wk
 
-    def _lag(self, x: np.ndarray, tau: float) -> np.ndarray:
-        if tau > 0:
-            return lagged(self.t, np.ascontiguousarray(x), tau, float(x[0]))
-        return x
+    def _lag(self, x: np.ndarray, eff: Effects) -> np.ndarray:
+        return sensor_filtered(eff, self.t, x)
 
     def affine(self, eff: Effects, free: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
         """(base, basis): w_meas = base + basis @ theta for the free linear fields (others fixed)."""
         wc = self.core(eff)
-        tau = eff.sensor_tau_s
-        base = self._lag(wc, tau)
+        base = self._lag(wc, eff)
         cols = []
         aero = self.q is not None
         g, c, d = eff.aero_gain_per_kpa, eff.aero_deg_per_kpa, eff.drift_deg_s
         if aero and ("aero_gain_per_kpa" in free or g != 0.0):
-            lqw = self._lag(self.q * wc, tau)
+            lqw = self._lag(self.q * wc, eff)
             if "aero_gain_per_kpa" in free:
                 cols.append(-lqw)
             else:
                 base = base - g * lqw
         if aero and ("aero_deg_per_kpa" in free or c != 0.0):
-            lq = self._lag(self.q, tau)
+            lq = self._lag(self.q, eff)
             if "aero_deg_per_kpa" in free:
                 cols.append(-lq)
             else:

@@ -507,6 +507,7 @@ BOUND_CONFIDENCE = 0.5  # confidence factor of an effect whose fitted parameter 
 
 BOUND_HINTS = {  # what an edge of a search means where the generic reading does not hold
     ("capstan_zero_mm", "upper"): "the tendon would go slack within the log's travel",
+    ("sensor_stage_ratio", "upper"): "two equal lags: the sensor may have more stages, or a delay as well",
 }
 
 

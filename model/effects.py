@@ -16,7 +16,8 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 |             | capstan_pull_ratio, _release_  | a stall at each reversal growing with the tension    |
 |             | ratio, capstan_zero_mm         |                                                      |
 | pretension  | pretension_offset_mm, _gain    | backbone u = offset + (a1 w^2 + a2 w + a3) / gain    |
-| sensor_lag  | sensor_tau_s                   | first-order lag of the warp measurement              |
+| sensor_lag  | sensor_tau_s, _stage_ratio     | first-order lag of the warp measurement, or two in   |
+|             |                                | cascade (the second ratio * tau)                     |
 | drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
 | aero_load   | aero_gain_per_kpa, aero_deg_per_kpa | w = w (1 - g q) - c q, q = rho V^2 / 2 in kPa   |
 
@@ -82,7 +83,8 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
                  "grows with the tension"),
     "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
                    "pre-tension changed: the elastic backbone shifts in tendon travel and its slope scales"),
-    "sensor_lag": (("sensor_tau_s",), (0.0,), "first-order lag in the warp measurement"),
+    "sensor_lag": (("sensor_tau_s", "sensor_stage_ratio"), (0.0, 0.0),
+                   "the warp sensor's own dynamics: a first-order lag, or two lags in cascade"),
     "drift": (("drift_deg_s", "drift_tau_s"), (0.0, math.inf), "slow drift of the warp sensor's zero over the log"),
     "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
                   "airspeed-dependent load on the trailing edge: warp lost in proportion to dynamic pressure"),
@@ -103,6 +105,7 @@ class Effects:
     pretension_offset_mm: float = 0.0
     pretension_gain: float = 1.0
     sensor_tau_s: float = 0.0
+    sensor_stage_ratio: float = 0.0  # a second lag in cascade, its time constant per sensor_tau_s (0: none)
     drift_deg_s: float = 0.0
     drift_tau_s: float = math.inf
     aero_gain_per_kpa: float = 0.0
@@ -124,11 +127,20 @@ class Effects:
             raise ValueError("drift time constant must be positive")
         if not (0.0 <= self.capstan_pull_ratio < 1.0 and 0.0 <= self.capstan_release_ratio < 1.0):
             raise ValueError("capstan ratios must be in [0, 1): the stall cannot outgrow the travel")
+        if not 0.0 <= self.sensor_stage_ratio <= 1.0:
+            raise ValueError("sensor stage ratio must be in [0, 1]: the second lag is the shorter one")
+        if self.sensor_tau_s == 0.0:  # no lag, no second stage
+            object.__setattr__(self, "sensor_stage_ratio", 0.0)
         if not math.isfinite(self.capstan_zero_mm):
             raise ValueError("capstan zero travel must be finite")
         if self.capstan_pull_ratio == 0.0 and self.capstan_release_ratio == 0.0:  # where the tendon would go
             # slack does not matter without a stall
             object.__setattr__(self, "capstan_zero_mm", 0.0)
+
+    @property
+    def sensor_taus(self) -> tuple[float, ...]:
+        """Time constants of the sensor's lags in cascade (empty: no lag)."""
+        return tuple(tau for tau in (self.sensor_tau_s, self.sensor_tau_s * self.sensor_stage_ratio) if tau > 0)
 
     @property
     def has_slack(self) -> bool:
@@ -356,6 +368,14 @@ def lagged(t, w, tau, y0):
     return out
 
 
+def sensor_filtered(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The warp sensor's lag (one or two first-order stages in cascade), each starting settled on w[0]."""
+    y = np.ascontiguousarray(w, dtype=np.float64)
+    for tau in eff.sensor_taus:
+        y = lagged(t, y, tau, float(y[0]))
+    return y
+
+
 def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash and capstan stall)."""
     x = np.ascontiguousarray(u, dtype=np.float64)
@@ -376,8 +396,7 @@ def apply_output_effects(eff: Effects, t: np.ndarray, w_model: np.ndarray, airsp
         q = dynamic_pressure_kpa(airspeed)
         w = w * (1.0 - eff.aero_gain_per_kpa * q) - eff.aero_deg_per_kpa * q
     w_meas = w
-    if eff.sensor_tau_s > 0:
-        w_meas = lagged(t, np.ascontiguousarray(w_meas), eff.sensor_tau_s, float(w_meas[0]))
+    w_meas = sensor_filtered(eff, t, w_meas)
     if eff.drift_deg_s != 0.0:
         w_meas = w_meas + eff.drift_deg_s * drift_shape(t - t[0], eff.drift_tau_s)
     return w, w_meas

@@ -76,7 +76,8 @@ class PlantStepper:
         self.w = rest_warp(plant.core_params(), x0, z0)
         self.z = float(z0)
         self._zn = -1.0  # |z|^n carried between samples, as the array map does
-        self._lag_y: float | None = None
+        self._lag_taus = e.sensor_taus
+        self._lag_y: list[float] | None = None  # each sensor stage's output, as effects.sensor_filtered
 
     def _delayed(self, t: float, u: float) -> float:
         d = self.plant.effects.delay_s
@@ -115,12 +116,12 @@ class PlantStepper:
             q = float(dynamic_pressure_kpa(airspeed))
             w_true = w_true * (1.0 - e.aero_gain_per_kpa * q) - e.aero_deg_per_kpa * q
         w_meas = w_true
-        if e.sensor_tau_s > 0:
+        if self._lag_taus:
             if self._lag_y is None:
-                self._lag_y = w_true
-            a = math.exp(-(t - self._t_prev) / e.sensor_tau_s)
-            self._lag_y = a * self._lag_y + (1.0 - a) * w_true
-            w_meas = self._lag_y
+                self._lag_y = [w_true] * len(self._lag_taus)
+            for i, tau in enumerate(self._lag_taus):
+                a = math.exp(-(t - self._t_prev) / tau)
+                self._lag_y[i] = w_meas = a * self._lag_y[i] + (1.0 - a) * w_meas
         if e.drift_deg_s != 0.0:
             w_meas = w_meas + e.drift_deg_s * float(drift_shape(t - self._t0, e.drift_tau_s))
         self._t_prev = float(t)

@@ -171,7 +171,7 @@ def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
     assert abs(big - z) < 2e-5, (big, z)
 
 
-@pytest.mark.parametrize("effects", ["none", "slack", "capstan"])
+@pytest.mark.parametrize("effects", ["none", "slack", "capstan", "sensor"])
 def test_plant_stepper_gives_identical_results_to_plant_simulate(effects):
     from warpbridge.model.effects import Effects
     from warpbridge.model.plant import Plant, PlantStepper
@@ -179,11 +179,13 @@ def test_plant_stepper_gives_identical_results_to_plant_simulate(effects):
     e = {"none": Effects(),
          "slack": Effects(backlash_mm=0.2, pretension_offset_mm=0.3, pretension_gain=0.9),
          "capstan": Effects(backlash_mm=0.1, capstan_pull_ratio=0.04, capstan_release_ratio=0.02,
-                            capstan_zero_mm=1.0)}[effects]
+                            capstan_zero_mm=1.0),
+         "sensor": Effects(sensor_tau_s=0.03, sensor_stage_ratio=0.6, drift_deg_s=0.01)}[effects]
     plant = Plant(P, e)
     t = np.arange(0, 6, 1 / 500)
     u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=4)
-    w_true, _ = plant.simulate(t, u)
+    w_true, w_meas = plant.simulate(t, u)
     s = PlantStepper(plant, t[0], u[0])
-    w_step = np.array([s.step(tk, uk)[0] for tk, uk in zip(t, u, strict=True)])
-    assert np.array_equal(w_step, w_true)
+    steps = np.array([s.step(tk, uk) for tk, uk in zip(t, u, strict=True)])
+    assert np.array_equal(steps[:, 0], w_true)
+    np.testing.assert_allclose(steps[:, 1], w_meas, rtol=0, atol=1e-12)

@@ -34,7 +34,7 @@ TRUE = {
     "backlash": (Effects(backlash_mm=0.15), 0.1),
     "friction": (Effects(friction_scale=1.3), 0.05),
     "pretension": (Effects(pretension_offset_mm=0.2, pretension_gain=0.93), 0.1),
-    "sensor_lag": (Effects(sensor_tau_s=0.05), 0.1),
+    "sensor_lag": (Effects(sensor_tau_s=0.05, sensor_stage_ratio=0.5), 0.1),
     "drift": (Effects(drift_deg_s=0.01), 0.1),
     "aero_load": (Effects(aero_gain_per_kpa=0.5, aero_deg_per_kpa=2.0), 0.15),
 }
