@@ -130,7 +130,7 @@ class Box:
     hi: float
     log: bool = False
     neutral_at_hi: bool = False  # rate limit: the top of the box means "no limit"
-    neutral_at_lo: bool = False  # capstan ratio: the bottom of the box means "no stall" (0)
+    neutral_at_lo: bool = False  # capstan ratio, sensor stage ratio: the bottom of the box means "none" (0)
     grid_like: str | None = None  # on the starting grid, take the coordinate of this (earlier) box
 
     def value(self, s: float) -> float:

@@ -127,15 +127,14 @@ class Effects:
             raise ValueError("drift time constant must be positive")
         if not (0.0 <= self.capstan_pull_ratio < 1.0 and 0.0 <= self.capstan_release_ratio < 1.0):
             raise ValueError("capstan ratios must be in [0, 1): the stall cannot outgrow the travel")
+        if not math.isfinite(self.capstan_zero_mm):
+            raise ValueError("capstan zero travel must be finite")
+        if not self.has_capstan:  # where the tendon would go slack does not matter without a stall
+            object.__setattr__(self, "capstan_zero_mm", 0.0)
         if not 0.0 <= self.sensor_stage_ratio <= 1.0:
             raise ValueError("sensor stage ratio must be in [0, 1]: the second lag is the shorter one")
         if self.sensor_tau_s == 0.0:  # no lag, no second stage
             object.__setattr__(self, "sensor_stage_ratio", 0.0)
-        if not math.isfinite(self.capstan_zero_mm):
-            raise ValueError("capstan zero travel must be finite")
-        if self.capstan_pull_ratio == 0.0 and self.capstan_release_ratio == 0.0:  # where the tendon would go
-            # slack does not matter without a stall
-            object.__setattr__(self, "capstan_zero_mm", 0.0)
 
     @property
     def sensor_taus(self) -> tuple[float, ...]:
@@ -143,9 +142,14 @@ class Effects:
         return tuple(tau for tau in (self.sensor_tau_s, self.sensor_tau_s * self.sensor_stage_ratio) if tau > 0)
 
     @property
+    def has_capstan(self) -> bool:
+        """True when friction is in its capstan form (a stall pulling, releasing or both)."""
+        return self.capstan_pull_ratio > 0 or self.capstan_release_ratio > 0
+
+    @property
     def has_slack(self) -> bool:
         """True when the input passes through a play (backlash, capstan stall or both)."""
-        return self.backlash_mm > 0 or self.capstan_pull_ratio > 0 or self.capstan_release_ratio > 0
+        return self.backlash_mm > 0 or self.has_capstan
 
     @property
     def slack_args(self) -> tuple[float, float, float, float]:
@@ -208,8 +212,7 @@ class Effects:
 def form_fields(name: str, eff: Effects) -> tuple[str, ...]:
     """The parameters of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its scale."""
     if name == "friction":
-        capstan = eff.capstan_pull_ratio > 0 or eff.capstan_release_ratio > 0
-        return EFFECT_FIELDS[name][0][1:] if capstan else ("friction_scale",)
+        return EFFECT_FIELDS[name][0][1:] if eff.has_capstan else ("friction_scale",)
     return EFFECT_FIELDS[name][0]
 
 

@@ -404,13 +404,15 @@ def test_a_nominal_that_leaves_its_monotone_range_still_gets_candidates_judged_a
     assert fit.effects.drift_deg_s == pytest.approx(0.02, rel=0.2)
 
 
+GROWING_STALL = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=-5.0)
+
+
 def test_a_stall_that_does_not_grow_with_the_tension_is_not_kept_as_friction():
     """A capstan stall whose slack travel lies far below the log's travel is a dead band of fixed width: the fit
     does not keep friction's capstan form for it, and the diagnosis names backlash; a stall that grows across
     the travel keeps the capstan form."""
     flat = Effects(capstan_pull_ratio=0.004, capstan_release_ratio=0.004, capstan_zero_mm=-20.0)
-    growing = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=-5.0)
-    for eff, capstan in ((flat, False), (growing, True)):
+    for eff, capstan in ((flat, False), (GROWING_STALL, True)):
         t, u, w, v = make_log(eff, seed=0)
         fit = Problem(t, u, w, v, P, Effects()).fit(("friction",))
         assert ("capstan_zero_mm" in fit.values()["friction"]) is capstan, fit.values()
@@ -428,8 +430,7 @@ def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
     t, u, _, _ = make_log(Effects(), seed=0)
     span = float(u.max() - u.min())  # the stall's slack travel 1.5 spans below the travel: a quarter into its search
     slight = Effects(capstan_pull_ratio=0.004, capstan_release_ratio=0.004, capstan_zero_mm=float(u.min()) - 1.5 * span)
-    growing = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=-5.0)
-    for eff, plain, parsimonious in ((slight, ["friction"], ["backlash"]), (growing, ["friction"], ["friction"])):
+    for eff, plain, parsimonious in ((slight, ["friction"], ["backlash"]), (GROWING_STALL, ["friction"], ["friction"])):
         t, u, w, v = make_log(eff, seed=0)
         for parsimony, want in ((False, plain), (True, parsimonious)):
             d = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(parsimony=parsimony)))
