@@ -45,11 +45,12 @@ import time
 import tomllib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from warpbridge.bridge.commands.effects_spec import parse_effects
 from warpbridge.bridge.config import parse_config
 from warpbridge.bridge.controller import MODES
 from warpbridge.bridge.errors import UserError
@@ -162,36 +163,6 @@ def gcs_outputs(args: argparse.Namespace) -> list[str]:
                 raise UserError(f"--gcs {full}: cannot listen there: {e.strerror or e}") from None
         out.append(full)
     return out
-
-
-def parse_effects(text: str) -> Effects:
-    """'delay=0.03,backlash=0.2,pretension=0.3:1.1' -> Effects (names or parameter names)."""
-    kw: dict[str, float] = {}
-    known = {f.name for f in fields(Effects)}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        name, sep, value = item.partition("=")
-        name = name.strip()
-        if not sep:
-            raise UserError(f"--effects: {item!r} needs a value (name=value)")
-        try:
-            values = [float(v) for v in value.split(":")]
-        except ValueError:
-            raise UserError(f"--effects: {item!r}: not a number") from None
-        if name in EFFECT_FIELDS:
-            names = EFFECT_FIELDS[name][0]
-            if len(values) > len(names):
-                raise UserError(f"--effects: {name} takes at most {len(names)} value(s) ({':'.join(names)})")
-            kw.update(zip(names, values, strict=False))
-        elif name in known:
-            if len(values) != 1:
-                raise UserError(f"--effects: {name} takes one value")
-            kw[name] = values[0]
-        else:
-            raise UserError(f"--effects: unknown effect {name!r} (known: {', '.join(EFFECT_FIELDS)})")
-    try:
-        return Effects(**kw)
-    except ValueError as e:
-        raise UserError(f"--effects: {e}") from None
 
 
 def _read_model(path: Path, what: str) -> ModelFile:

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warpbridge.sitl.cmd_sitl import join_reads, parse_effects
+from warpbridge.bridge.commands.effects_spec import parse_effects
+from warpbridge.sitl.cmd_sitl import join_reads
 from warpbridge.sitl.lockstep import run_lockstep
 from warpbridge.sitl.scenarios import make_scenario
 

@@ -2,17 +2,24 @@
 
 Each effect name of the design brief takes its parameters in the order of
 ``model.effects.EFFECT_FIELDS`` separated by ``:``; omitted trailing ones keep
-their neutral value.
+their neutral value. A single parameter may also be set by its own name
+(``aero_deg_per_kpa=2``). ``warpbridge simulate --effects`` and
+``warpbridge sitl --effects`` both read this form.
 """
 
 from __future__ import annotations
 
+from dataclasses import fields as dataclass_fields
+
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
 
+PARAMETERS = frozenset(f.name for f in dataclass_fields(Effects))
 
-def parse_effects(spec: str | None) -> Effects:
-    """Effects from ``name=v1[:v2],...``; empty or None gives no effect."""
+
+def parse_effects(spec: str | None, what: str = "--effects") -> Effects:
+    """Effects from ``name=v1[:v2],...`` (effect names, or single parameter names); empty or None gives no
+    effect. Errors are ``UserError``s prefixed with ``what`` (the option they came from)."""
     if not spec:
         return Effects()
     kw: dict[str, float] = {}
@@ -22,23 +29,29 @@ def parse_effects(spec: str | None) -> Effects:
             continue
         name, sep, vals = item.partition("=")
         name = name.strip()
-        if name not in EFFECT_FIELDS:
-            raise UserError(f"unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+        if name in EFFECT_FIELDS:
+            names = EFFECT_FIELDS[name][0]
+            example = f"{name}={describe(name)}"
+        elif name in PARAMETERS:
+            names = (name,)
+            example = f"{name}=<value>"
+        else:
+            raise UserError(f"{what}: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)}, or one of "
+                            "their parameters by name)")
         if not sep or not vals.strip():
-            raise UserError(f"effect {name!r} needs a value, e.g. {name}={describe(name)}")
-        fields = EFFECT_FIELDS[name][0]
+            raise UserError(f"{what}: effect {name!r} needs a value, e.g. {example}")
         parts = vals.split(":")
-        if len(parts) > len(fields):
-            raise UserError(f"effect {name!r} takes at most {len(fields)} value(s): {', '.join(fields)}")
-        for f, v in zip(fields, parts, strict=False):
+        if len(parts) > len(names):
+            raise UserError(f"{what}: {name!r} takes at most {len(names)} value(s): {', '.join(names)}")
+        for f, v in zip(names, parts, strict=False):
             try:
                 kw[f] = float(v)
             except ValueError:
-                raise UserError(f"effect {name!r}: {v!r} is not a number") from None
+                raise UserError(f"{what}: effect {name!r}: {v!r} is not a number") from None
     try:
         return Effects(**kw)
     except ValueError as e:
-        raise UserError(str(e)) from None
+        raise UserError(f"{what}: {e}") from None
 
 
 def describe(name: str) -> str:
