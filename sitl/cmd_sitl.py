@@ -98,7 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the lock-step comparison of all controller modes instead (fast)")
     parser.add_argument("--effects", default="",
                         help="unmodelled effects of the simulated wing, e.g. 'delay=0.03,backlash=0.2' "
-                             f"(names: {', '.join(EFFECT_FIELDS)}; effects with several parameters take a:b[:c...])")
+                             f"(names: {', '.join(EFFECT_FIELDS)}; effects with several parameters take a:b[:c...]; "
+                             "or one parameter by its name, e.g. aero_deg_per_kpa=2)")
     parser.add_argument("--model", type=Path, default=None,
                         help="MODEL.json the simulated wing follows (params and effects; default: the paper's)")
     parser.add_argument("--plant", choices=("bouc-wen", "sheath"), default="bouc-wen",

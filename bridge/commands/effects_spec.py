@@ -60,4 +60,4 @@ def describe(name: str) -> str:
 
 
 def help_text() -> str:
-    return "; ".join(f"{n}={describe(n)}" for n in EFFECT_NAMES)
+    return "; ".join(f"{n}={describe(n)}" for n in EFFECT_NAMES) + "; or one parameter by its name (aero_deg_per_kpa=2)"
