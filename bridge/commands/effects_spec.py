@@ -17,9 +17,9 @@ from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
 PARAMETERS = frozenset(f.name for f in dataclass_fields(Effects))
 
 
-def parse_effects(spec: str | None, what: str = "--effects") -> Effects:
+def parse_effects(spec: str | None) -> Effects:
     """Effects from ``name=v1[:v2],...`` (effect names, or single parameter names); empty or None gives no
-    effect. Errors are ``UserError``s prefixed with ``what`` (the option they came from)."""
+    effect. Errors are ``UserError``s naming the ``--effects`` option."""
     if not spec:
         return Effects()
     kw: dict[str, float] = {}
@@ -36,22 +36,22 @@ def parse_effects(spec: str | None, what: str = "--effects") -> Effects:
             names = (name,)
             example = f"{name}=<value>"
         else:
-            raise UserError(f"{what}: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)}, or one of "
+            raise UserError(f"--effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)}, or one of "
                             "their parameters by name)")
         if not sep or not vals.strip():
-            raise UserError(f"{what}: effect {name!r} needs a value, e.g. {example}")
+            raise UserError(f"--effects: effect {name!r} needs a value, e.g. {example}")
         parts = vals.split(":")
         if len(parts) > len(names):
-            raise UserError(f"{what}: {name!r} takes at most {len(names)} value(s): {', '.join(names)}")
+            raise UserError(f"--effects: {name!r} takes at most {len(names)} value(s): {', '.join(names)}")
         for f, v in zip(names, parts, strict=False):
             try:
                 kw[f] = float(v)
             except ValueError:
-                raise UserError(f"{what}: effect {name!r}: {v!r} is not a number") from None
+                raise UserError(f"--effects: effect {name!r}: {v!r} is not a number") from None
     try:
         return Effects(**kw)
     except ValueError as e:
-        raise UserError(f"{what}: {e}") from None
+        raise UserError(f"--effects: {e}") from None
 
 
 def describe(name: str) -> str:
