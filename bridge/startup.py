@@ -89,8 +89,10 @@ def centre_line(config: Config) -> tuple[float, float, float] | None:
         effects = doc.get("effects") or {}
         pt = effects.get("pretension") or {}
         off, gain = float(pt.get("pretension_offset_mm", 0.0)), float(pt.get("pretension_gain", 1.0))
-        scale = float((effects.get("friction") or {}).get("friction_scale", 1.0))
-        shift = _friction_shift(doc["params"], scale) if scale != 1.0 else 0.0
+        friction = effects.get("friction") or {}
+        scale = float(friction.get("friction_scale", 1.0))
+        pivot = float(friction.get("friction_pivot", 0.0))
+        shift = _friction_shift(doc["params"], scale, pivot) if scale != 1.0 else 0.0
         if doc.get("effect_forms", 1) == 1:  # the earlier forms: the shift was folded before the gain
             shift /= gain
     except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError, ZeroDivisionError,
@@ -101,17 +103,18 @@ def centre_line(config: Config) -> tuple[float, float, float] | None:
     return a1 / gain, a2 / gain, a3 / gain + off + shift
 
 
-def _friction_shift(params: dict, scale: float) -> float:
-    """The move of a3 that keeps the middle of the hysteresis band in place when the friction change
-    ``scale`` widens the loop (``model.effects.friction_core``, on positive warp), in plain Python."""
+def _friction_shift(params: dict, scale: float, pivot: float = 0.0) -> float:
+    """The move of a3 that keeps the level ``pivot`` of the hysteresis band (0 its middle, +-1 its edges) in
+    place when the friction change ``scale`` widens the loop (``model.effects.friction_core``, on positive
+    warp), in plain Python."""
     az, A, n = float(params["az"]), float(params["A"]), float(params["n"])
     b1, b2, b3, b4, b5, b6 = (float(x) for x in params["b"])
     psi_hi = b1 + b2 + b3 + b4 + b5 + b6  # loading, z > 0
     psi_lo = b1 - b2 - b3 - b4 - b5 + b6  # unloading, z < 0
     if not (psi_hi > 0 and psi_lo > 0 and A > 0):
         return 0.0
-    mid = 0.5 * ((A / psi_hi) ** (1.0 / n) - (A / psi_lo) ** (1.0 / n))
-    return az * (1.0 - scale) * mid
+    hi, lo = (A / psi_hi) ** (1.0 / n), -((A / psi_lo) ** (1.0 / n))
+    return az * (1.0 - scale) * (0.5 * (hi + lo) + pivot * 0.5 * (hi - lo))
 
 
 def servo_calibration(wing: WingConfig) -> ServoCalibration:

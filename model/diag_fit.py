@@ -68,7 +68,7 @@ LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
 INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale",
-                "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm")
+                "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm", "friction_pivot")
 
 
 # ---- the train / score split -------------------------------------------------------------------
@@ -177,7 +177,7 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
     if name == "backlash":
         return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
     if name == "friction":
-        return [Box("friction_scale", 0.2, 5.0, log=True)]
+        return [Box("friction_scale", 0.2, 5.0, log=True), Box("friction_pivot", -1.0, 1.0)]
     if name == "capstan":  # the second form of friction (``forms_for``): the stall's zero below the log's travel
         return [Box("capstan_pull_ratio", 1e-4, 0.3, log=True, neutral_at_lo=True),
                 Box("capstan_zero_mm", lo_u - 2.0 * span, lo_u),

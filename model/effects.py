@@ -12,8 +12,8 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
-| friction    | friction_scale                 | the loop widens or narrows about its middle, or      |
-|             | capstan_pull_ratio, _release_  | a stall at each reversal growing with the tension    |
+| friction    | friction_scale, friction_pivot | the loop widens or narrows about a level inside it,  |
+|             | capstan_pull_ratio, _release_  | or a stall at each reversal growing with the tension |
 |             | ratio, capstan_zero_mm         |                                                      |
 | pretension  | pretension_offset_mm, _gain    | backbone u = offset + (a1 w^2 + a2 w + a3) / gain    |
 | sensor_lag  | sensor_tau_s, _stage_ratio     | first-order lag of the warp measurement, or two in   |
@@ -24,10 +24,17 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 Friction scales the width of the hysteresis band as Coulomb friction in a
 sheath does: the saturation levels of z scale by s (``b -> s^-n b``) while
 its slope right after a reversal (``A``, the elastic stick stiffness) stays,
-so a stronger friction needs proportionally more travel to break away; the
-band is scaled about its middle (``a3`` moves by ``az (1 - s) z_mid``, z_mid
-halfway between the saturation levels of loading and unloading), so the
-centre line (the elastic backbone) stays where it was.
+so a stronger friction needs proportionally more travel to break away. The
+band is scaled about a level inside it that stays put: ``a3`` moves by
+``az (1 - s) z_fix``, ``z_fix = z_mid + friction_pivot * z_half``, z_mid
+halfway between the saturation levels of loading and unloading and z_half
+half the distance between them. ``friction_pivot = 0`` (the default) keeps
+the centre line (the elastic backbone) where it was; +-1 keeps the loading
+or the unloading edge. A sheath's band does not always change symmetrically:
+a Bouc-Wen band shrinks toward z = 0 rather than toward its middle, and a
+capstan sheath's pull and release branches sit unequally about the
+frictionless line, so a friction change that keeps the middle would leave an
+offset that a pre-tension change would have to explain.
 
 A sheath with capstan friction has a second form of a friction change: after
 a reversal the far end stalls until the reversed slip has run along the whole
@@ -77,8 +84,9 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "delay": (("delay_s",), (0.0,), "pure transport delay between command and tendon motion"),
     "rate_limit": (("rate_mm_s",), (math.inf,), "servo slew-rate limit"),
     "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
-    "friction": (("friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm"),
-                 (1.0, 0.0, 0.0, 0.0),
+    "friction": (("friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm",
+                  "friction_pivot"),
+                 (1.0, 0.0, 0.0, 0.0, 0.0),
                  "sheath friction changed: the hysteresis widens or narrows, or a stall after each reversal "
                  "grows with the tension"),
     "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
@@ -102,6 +110,7 @@ class Effects:
     capstan_pull_ratio: float = 0.0  # stall while pulling, per mm of tendon travel above capstan_zero_mm
     capstan_release_ratio: float = 0.0  # stall while releasing, per mm of the same travel
     capstan_zero_mm: float = 0.0  # tendon travel at which the tendon goes slack (meaningless at ratio 0)
+    friction_pivot: float = 0.0  # the level of the band a friction scale keeps: 0 middle, +-1 its edges
     pretension_offset_mm: float = 0.0
     pretension_gain: float = 1.0
     sensor_tau_s: float = 0.0
@@ -131,6 +140,10 @@ class Effects:
             raise ValueError("capstan zero travel must be finite")
         if not self.has_capstan:  # where the tendon would go slack does not matter without a stall
             object.__setattr__(self, "capstan_zero_mm", 0.0)
+        if not -1.0 <= self.friction_pivot <= 1.0:
+            raise ValueError("friction pivot must be in [-1, 1]: a level inside the hysteresis band")
+        if self.friction_scale == 1.0:  # an unchanged band has no level to keep
+            object.__setattr__(self, "friction_pivot", 0.0)
         if not 0.0 <= self.sensor_stage_ratio <= 1.0:
             raise ValueError("sensor stage ratio must be in [0, 1]: the second lag is the shorter one")
         if self.sensor_tau_s == 0.0:  # no lag, no second stage
@@ -212,23 +225,27 @@ class Effects:
 def form_fields(name: str, eff: Effects) -> tuple[str, ...]:
     """The parameters of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its scale."""
     if name == "friction":
-        return EFFECT_FIELDS[name][0][1:] if eff.has_capstan else ("friction_scale",)
+        return EFFECT_FIELDS[name][0][1:4] if eff.has_capstan else ("friction_scale", "friction_pivot")
     return EFFECT_FIELDS[name][0]
 
 
-def friction_core(params, scale: float):
+def friction_core(params, scale: float, pivot: float = 0.0):
     """Bouc-Wen parameters (``model.boucwen.BoucWenParams``) with the friction effect folded in: the
-    saturation of z scaled by ``scale`` (b by scale^-n, A kept) and a3 moved so that the middle of the
-    hysteresis band stays put (see the module docstring)."""
+    saturation of z scaled by ``scale`` (b by scale^-n, A kept) and a3 moved so that the level
+    ``mid + pivot * half`` of the hysteresis band stays put (0: its middle, +-1: its edges; see the module
+    docstring)."""
     if scale == 1.0:
         return params
     try:
         hi, lo = params.z_saturation(1.0)
     except (ValueError, ZeroDivisionError, OverflowError):
         hi = lo = math.nan
-    mid = 0.5 * (hi + lo) if math.isfinite(hi) and math.isfinite(lo) else 0.0
+    if math.isfinite(hi) and math.isfinite(lo):
+        z_fix = 0.5 * (hi + lo) + pivot * 0.5 * (hi - lo)
+    else:
+        z_fix = 0.0
     k = scale ** (-params.n)
-    return replace(params, b=tuple(k * x for x in params.b), a3=params.a3 + params.az * (1.0 - scale) * mid)
+    return replace(params, b=tuple(k * x for x in params.b), a3=params.a3 + params.az * (1.0 - scale) * z_fix)
 
 
 def pretension_core(params, offset: float, gain: float):
@@ -243,7 +260,7 @@ def pretension_core(params, offset: float, gain: float):
 def core_params(params, eff: Effects):
     """The Bouc-Wen parameters the augmented plant runs: pre-tension and friction folded in."""
     return friction_core(pretension_core(params, eff.pretension_offset_mm, eff.pretension_gain),
-                         eff.friction_scale)
+                         eff.friction_scale, eff.friction_pivot)
 
 
 def fold_rigging(params, offset: float, gain: float, friction_scale: float = 1.0):

@@ -32,7 +32,7 @@ TRUE = {
     "delay": (Effects(delay_s=0.04), 0.1),
     "rate_limit": (Effects(rate_mm_s=6.0), 0.1),
     "backlash": (Effects(backlash_mm=0.15), 0.1),
-    "friction": (Effects(friction_scale=1.3), 0.05),
+    "friction": (Effects(friction_scale=1.3, friction_pivot=0.5), 0.1),
     "pretension": (Effects(pretension_offset_mm=0.2, pretension_gain=0.93), 0.1),
     "sensor_lag": (Effects(sensor_tau_s=0.05, sensor_stage_ratio=0.5), 0.1),
     "drift": (Effects(drift_deg_s=0.01), 0.1),

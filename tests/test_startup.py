@@ -83,6 +83,12 @@ def test_the_quick_read_of_the_model_file_matches_the_full_one(tmp_path):
     cfg = replace(load_config(config_file(tmp_path, 1, "loop:")), model_file=path)
     full = load_model(cfg)  # the validated read, effects folded by model.compensation
     assert centre_line(cfg) == pytest.approx((full.a1, full.a2, full.a3), rel=1e-12)
+    # a friction change that keeps a level off the band's middle
+    path.write_text(json.dumps(ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1,
+                                                        friction_scale=1.3, friction_pivot=-0.7)).to_dict()))
+    pivoted = load_model(cfg)
+    assert pivoted.a3 != pytest.approx(full.a3, rel=1e-6)
+    assert centre_line(cfg) == pytest.approx((pivoted.a1, pivoted.a2, pivoted.a3), rel=1e-12)
     # a file of the earlier effect forms (no "effect_forms" mark): the quick read follows the full one
     doc = ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1, friction_scale=1.3)).to_dict()
     del doc["effect_forms"]
