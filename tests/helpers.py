@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
+
+from warpbridge.sitl.cmd_sitl import free_udp_port  # noqa: F401  (the tests' loopback ports: one picker)
 
 # the loop-back servo and two wings on aileron output 1, the right one reversed: the tail of a test config
 LOOP_SERVO_WINGS = """[servo]
@@ -17,13 +17,6 @@ source_channel = 1
 reverse = true
 servo_channel = 1
 """
-
-
-def free_udp_port() -> int:
-    """A UDP port on 127.0.0.1 that nothing is bound to right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class ManualClock:

@@ -211,3 +211,15 @@ def test_pymavlink_mavsdk_and_mavproxy_list_the_bridges_parameters_through_warpb
         assert results["mavsdk_drift"] == 1
     assert results["mavproxy_received"].startswith(f"Received {len(names)} parameters"), results
     assert float(results["mavproxy_mode"][-1]) == 3.0, results  # MAVProxy prints ArduPilot's cast ints as 3.0
+
+
+def test_free_ports_lie_below_the_ephemeral_range_and_are_never_handed_out_twice():
+    """A port from the ephemeral range can be given to any socket that sends before binding, between the
+    check and the listener's bind (seen: the bridge could not listen on its FC port and waited forever)."""
+    low = cmd_sitl._ephemeral_low()
+    ports = [cmd_sitl.free_udp_port() for _ in range(40)]
+    assert len(set(ports)) == len(ports)
+    assert all(1024 <= p < low for p in ports)
+    for p in ports[:5]:  # and free: they bind
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", p))
