@@ -5,7 +5,7 @@ effects it already carries, z0) and a blocked train/score split. It predicts
 the measured warp for any ``Effects`` with the same operators, in the same
 order, as ``model.plant.Plant.simulate``, and caches the expensive part (the
 Bouc-Wen forward map, which depends only on the input-side effects, the
-capstan stall among them, and the friction scale). An effect with several
+capstan stall among them, and the friction scale and pivot). An effect with several
 forms (friction: the band scaled, or the capstan stall; ``forms_for``) is
 fitted in each and the form with the lower training error kept.
 

@@ -222,10 +222,14 @@ class Effects:
         return cls(**kw)
 
 
+BAND_FIELDS = ("friction_scale", "friction_pivot")  # friction's first form: the band scaled about a level
+CAPSTAN_FIELDS = ("capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm")  # its second: the stall
+
+
 def form_fields(name: str, eff: Effects) -> tuple[str, ...]:
-    """The parameters of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its scale."""
+    """The parameters of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its band scale."""
     if name == "friction":
-        return EFFECT_FIELDS[name][0][1:4] if eff.has_capstan else ("friction_scale", "friction_pivot")
+        return CAPSTAN_FIELDS if eff.has_capstan else BAND_FIELDS
     return EFFECT_FIELDS[name][0]
 
 

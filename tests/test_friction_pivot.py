@@ -14,7 +14,7 @@ from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.compensation import Compensator
 from warpbridge.model.diag_fit import Problem
-from warpbridge.model.effects import Effects, core_params, form_fields
+from warpbridge.model.effects import BAND_FIELDS, CAPSTAN_FIELDS, EFFECT_FIELDS, Effects, core_params, form_fields
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import ModelFile
 from warpbridge.model.plant import Plant, PlantStepper
@@ -55,6 +55,9 @@ def test_the_pivot_is_checked_and_means_nothing_without_a_friction_change():
     eff = Effects(friction_scale=1.2, friction_pivot=-0.4)
     assert eff.active() == ["friction"]
     assert form_fields("friction", eff) == ("friction_scale", "friction_pivot")
+    # friction's two forms share out its parameters: each belongs to exactly one
+    assert sorted(BAND_FIELDS + CAPSTAN_FIELDS) == sorted(EFFECT_FIELDS["friction"][0])
+    assert form_fields("friction", Effects(capstan_pull_ratio=0.05)) == CAPSTAN_FIELDS
 
 
 def test_the_model_file_and_the_effects_switch_carry_the_pivot():
