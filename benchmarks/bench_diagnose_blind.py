@@ -166,7 +166,8 @@ def identified_model(plant: Family, seed: int, index: int, args, work: Path) -> 
     if not cached.is_file():
         cached.parent.mkdir(parents=True, exist_ok=True)
         tmp_model = work / f"{plant.name}-ident.json"
-        code, text = run_cli(["identify", str(bench), "-o", str(tmp_model), "--quiet"])
+        # with the transport delay search, as a model to diagnose with should be identified
+        code, text = run_cli(["identify", str(bench), "-o", str(tmp_model), "--quiet", "--max-delay", "0.16"])
         if code != 0:
             raise RuntimeError(f"identify failed on {plant.name}: {text}")
         shutil.copyfile(tmp_model, cached)

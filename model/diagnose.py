@@ -690,8 +690,10 @@ def summary_lines(rep: dict) -> list[str]:
         lines.append(f"verdict: {', '.join(verdict)}; held-out RMS {sh['heldout_rms_before_deg']:.4f} -> "
                      f"{sh['heldout_rms_after_deg']:.4f} deg, gap closed "
                      + (f"{gc:.0%}" if gc is not None else "n/a"))
-        for n, p in rep["effects"].items():
-            lines.append(f"  {n}: {_fmt_params(p)}")
+        nominal = rep.get("nominal_effects") or {}
+        for n, p in rep["effects"].items():  # e.g. a field delay on top of the rig's own, which identify found
+            was = nominal.get(n)
+            lines.append(f"  {n}: {_fmt_params(p)}" + (f" (the model had {_fmt_params(was)})" if was else ""))
     else:
         lines.append("verdict: [] (no effect explains the gap beyond noise and the model's known error)")
     lines.extend(f"note: {n}" for n in rep["notes"])

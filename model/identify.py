@@ -19,6 +19,18 @@ What makes this fast and robust:
 - The initial state is not assumed: every candidate starts from the z its own
   parameters give for the log's first samples (z is algebraic in u and w), so a
   log that starts with the tendon loaded is fitted from its first sample.
+- A transport delay in front of the model, when asked (``max_delay_s``): the
+  servo, its link and the sensor's filter make the warp follow the tendon
+  command late. The Bouc-Wen model is rate independent, so without a delay it
+  widens its loop to take up that lag. That wider loop is what a feed-forward
+  flies best with (it cannot undo a delay, and the wider loop leads the
+  motion), but a diagnosis judged against it mistakes a field sensor lag for a
+  delay. After the search at no delay, a scan of delays (a short polish each,
+  from the best model so far) and a final polish at the best one find it; the
+  delay is kept only when the polished model with it lowers the training cost
+  by ``DELAY_GAIN`` against the polished model without it (``model.effects``
+  ``delay_s`` in MODEL.json, where ``predict``, ``diagnose`` and the SITL apply
+  it).
 - Path compression: the model is rate independent, so its output at a kept
   sample depends only on the input's extrema before it. Keeping every reversal
   plus a decimated grid gives the same outputs at a fraction of the cost.
@@ -47,6 +59,7 @@ from scipy.optimize import differential_evolution, minimize
 from warpbridge.model import kernels as K
 from warpbridge.model._jit import njit, prange
 from warpbridge.model.boucwen import BoucWenParams, forward
+from warpbridge.model.effects import delayed
 from warpbridge.model.initial_state import algebraic_z0_rows, estimate_z0
 
 log = logging.getLogger(__name__)
@@ -219,13 +232,14 @@ class IdentResult:
     z0: float = 0.0
     trace: SearchTrace | None = field(default=None, repr=False)
     support: Support | None = None
+    delay_s: float = 0.0  # transport delay in front of the model (s): the model sees u(t - delay_s)
 
     def fit_dict(self) -> dict:
         d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
              "linear_heldout_rms_deg": self.linear_heldout_rms, "n_train": self.n_train,
              "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
              "evaluations": self.evaluations, "method": "differential-evolution + nelder-mead",
-             "z0_start_of_log": self.z0}
+             "z0_start_of_log": self.z0, "delay_s": self.delay_s}
         if self.support is not None:
             d |= {"supported": self.support.supported, "support": self.support.reason}
         return d
@@ -358,6 +372,9 @@ POLISH_REVERSALS = 120  # the polish scores on at most this many reversals (and 
 STRETCHES = 4  # when a log holds more, evenly spread stretches of it
 SEARCH_SPREAD = 0.01  # the search stops once its population's costs agree within this (std / mean)
 START_SAMPLES = 25  # raw samples given to the algebraic initial state of a stretch
+DELAY_GRID_S = (0.005, 0.01, 0.02, 0.03, 0.045, 0.065, 0.09, 0.12, 0.16)  # transport delays the scan tries (s)
+DELAY_SCAN_EVALS = 200  # Nelder-Mead evaluations of the short polish at each delay of the scan
+DELAY_GAIN = 0.02  # a delay is kept only when it lowers the training cost by this share of the no-delay cost
 
 
 def fit_stretches(u: np.ndarray, n_end: int, max_reversals: int, pieces: int = STRETCHES) -> list[tuple[int, int]]:
@@ -515,7 +532,7 @@ class SearchTrace:
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
              polish_evals: int = 2500, max_fit_points: int = 2500,
-             prior: BoucWenParams | None = None,
+             prior: BoucWenParams | None = None, max_delay_s: float = 0.0,
              progress: Callable[[str, int, int], None] | None = None) -> IdentResult:
     """Identify the Bouc-Wen model (warp -> tendon) from a log by forward output error.
 
@@ -574,10 +591,6 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     lo = np.array([b[0] for b in bounds])
     hi = np.array([b[1] for b in bounds])
 
-    def clipped(th):
-        pen = float(np.sum(np.maximum(th - hi, 0) + np.maximum(lo - th, 0)))
-        return obj.one(np.clip(th, lo, hi)) + 10.0 * pen
-
     def _nm_cb(_xk):
         trace.polish_iterations += 1
         if progress and trace.polish_iterations % 20 == 0:
@@ -586,14 +599,31 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     # the polish starts from whichever of the search's five best is best on the polish's data
     top = np.asarray(de.population)[np.argsort(de.population_energies)[:5]]
     costs = obj.many(top)
-    x_start, f_start = top[int(np.argmin(costs))], float(np.min(costs))
-    nm = minimize(clipped, x_start, method="Nelder-Mead", callback=_nm_cb,
-                  options={"maxfev": polish_evals, "xatol": 1e-7, "fatol": 1e-14, "adaptive": True})
-    best = np.clip(nm.x if nm.fun <= f_start else x_start, lo, hi)
+    x_start = top[int(np.argmin(costs))]
+    delay = 0.0
+    if max_delay_s > 0:
+        no_delay_start = x_start
+        delay, x_start, scan_calls = _delay_search(t, u_hat, w_hat, n_train_end, norm.c, x_start, lo, hi,
+                                                   max_delay_s, progress)
+        search.calls += scan_calls
+    if delay > 0:
+        obj_d = _Objective(FitPath.build(delayed(t, u_hat, delay), w_hat, n_train_end, max_fit_points,
+                                         POLISH_REVERSALS), norm.c)
+        best, cost = _polish(obj_d, x_start, lo, hi, polish_evals, _nm_cb)
+        # the scan judged on a smaller path with short polishes: the delay is kept only if the fully polished
+        # model with it still beats the one without it (the same amount of polish) on the polish's path
+        no_delay, cost0 = _polish(obj, no_delay_start, lo, hi, polish_evals, _nm_cb)
+        search.calls += obj_d.calls
+        if cost > (1.0 - DELAY_GAIN) * cost0:
+            log.info("transport delay %.1f ms not kept: polished, it fits no better than none", 1e3 * delay)
+            delay, best = 0.0, no_delay
+    else:
+        best, _ = _polish(obj, x_start, lo, hi, polish_evals, _nm_cb)
     params = norm.to_physical(theta_to_normalised(best, norm.c))
 
-    z0 = estimate_z0(params, u[:n_train_end], w[:n_train_end])
-    w_pred, _, _ = forward(params, u, z0=z0)
+    x = delayed(t, u, delay) if delay > 0 else u
+    z0 = estimate_z0(params, x[:n_train_end], w[:n_train_end])
+    w_pred, _, _ = forward(params, x, z0=z0)
     err = w_pred - w
     train_rms = float(np.sqrt(np.mean(err[train_mask] ** 2)))
     held_rms = float(np.sqrt(np.mean(err[held_mask] ** 2))) if held_mask.any() else float("nan")
@@ -603,4 +633,73 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         linear_heldout_rms=linear_baseline(u, w, train_mask, held_mask), n_train=int(train_mask.sum()),
         n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=search.calls + obj.calls,
         split_time=split_time, w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask, z0=z0, trace=trace,
-        support=support_check(t, u, w, w_pred, train_mask, held_mask, noise))
+        support=support_check(t, u, w, w_pred, train_mask, held_mask, noise), delay_s=delay)
+
+
+def _polish(obj: _Objective, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, evals: int,
+            callback=None) -> tuple[np.ndarray, float]:
+    """Nelder-Mead from ``x0`` inside the box [lo, hi] (a penalty outside it): (theta, its cost)."""
+
+    def clipped(th):
+        pen = float(np.sum(np.maximum(th - hi, 0) + np.maximum(lo - th, 0)))
+        return obj.one(np.clip(th, lo, hi)) + 10.0 * pen
+
+    f0 = obj.one(x0)
+    nm = minimize(clipped, x0, method="Nelder-Mead", callback=callback,
+                  options={"maxfev": evals, "xatol": 1e-7, "fatol": 1e-14, "adaptive": True})
+    if not nm.fun <= f0:
+        return x0, f0
+    best = np.clip(nm.x, lo, hi)
+    return best, obj.one(best)
+
+
+def _delay_search(t, u_hat, w_hat, n_end: int, c: float, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                  max_delay_s: float, progress) -> tuple[float, np.ndarray, int]:
+    """(delay s, theta to polish from, evaluations): the transport delay in front of the model that fits the
+    training part best, by a short polish at no delay and at each delay of ``DELAY_GRID_S`` on the global
+    search's path, each from the best model so far. The scan stops once two delays in a row cost half as
+    much again as the best; a parabola through the best and its neighbours places the delay between grid
+    points. No delay unless the best lowers the cost by ``DELAY_GAIN``."""
+    dur = float(t[n_end - 1] - t[0]) if n_end > 1 else 0.0
+    grid = [d for d in DELAY_GRID_S if d <= max_delay_s and d <= 0.05 * dur]
+
+    calls = 0
+
+    def fit_at(d: float, start: np.ndarray) -> tuple[np.ndarray, float]:
+        nonlocal calls
+        x = delayed(t, u_hat, d) if d > 0 else u_hat
+        obj = _Objective(FitPath.build(x, w_hat, n_end, SEARCH_POINTS, SEARCH_REVERSALS), c)
+        out = _polish(obj, start, lo, hi, DELAY_SCAN_EVALS)
+        calls += obj.calls
+        return out
+
+    th0, cost0 = fit_at(0.0, theta0)
+    tried = {0.0: cost0}
+    best_d, best_th, best_cost = 0.0, th0, cost0
+    worse = 0
+    for i, d in enumerate(grid):
+        if progress:
+            progress("delay", i, len(grid))
+        th, f = fit_at(d, best_th)
+        tried[d] = f
+        if f < best_cost:
+            best_d, best_th, best_cost, worse = d, th, f, 0
+        elif f > 1.5 * best_cost:
+            worse += 1
+            if worse >= 2:
+                break
+    if progress:
+        progress("delay", len(grid), len(grid))
+    if best_d <= 0 or best_cost > (1.0 - DELAY_GAIN) * cost0:
+        return 0.0, th0, calls
+    ds = sorted(tried)
+    k = ds.index(best_d)
+    if k + 1 < len(ds):  # the vertex of the parabola through the best delay and its two neighbours
+        (d0, d1, d2), (f0, f1, f2) = ds[k - 1:k + 2], (tried[d] for d in ds[k - 1:k + 2])
+        den = (d1 - d0) * (f1 - f2) - (d1 - d2) * (f1 - f0)
+        if den != 0:
+            v = d1 - 0.5 * ((d1 - d0) ** 2 * (f1 - f2) - (d1 - d2) ** 2 * (f1 - f0)) / den
+            best_d = float(min(max(v, 0.5 * (d0 + d1)), 0.5 * (d1 + d2)))
+    log.info("transport delay %.1f ms: training cost at no delay %.3g, at the best delay of the scan %.3g",
+             1e3 * best_d, cost0, best_cost)
+    return best_d, best_th, calls

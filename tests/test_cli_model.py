@@ -197,8 +197,9 @@ def test_identify_records_whether_the_data_support_the_model(workdir, capsys):
 
 
 def test_predict_adds_the_bench_correction_the_model_carries_when_asked(tmp_path, capsys):
-    # the bench's sensor has dynamics the rate-independent model lacks (40 + 15 ms): identify learns them as
-    # model error, and predict --correction carries them to another excitation (a 0.5-3 Hz sweep)
+    # the bench's sensor has dynamics the rate-independent model lacks (40 + 15 ms): identify (told to fit no
+    # transport delay) learns them as model error, and predict --correction carries them to another excitation
+    # (a 0.5-3 Hz sweep)
     rng = np.random.default_rng(5)
     for name, argv in (("bench", ["--duration", 40, "--seed", 3]),
                        ("check", ["--duration", 20, "--excitation", "sweep", "--seed", 4])):
@@ -206,6 +207,7 @@ def test_predict_adds_the_bench_correction_the_model_carries_when_asked(tmp_path
         log = np.loadtxt(tmp_path / f"{name}-clean.csv", delimiter=",", skiprows=1)
         log[:, 2] = two_stage_lag(log[:, 0], log[:, 2], 0.04, 0.015, substeps=10) + 0.03 * rng.standard_normal(len(log))
         np.savetxt(tmp_path / f"{name}.csv", log[:, :3], delimiter=",", header="t,u,warp", comments="", fmt="%.9g")
+    # no transport delay in front of the model (the default): the sensor's lag is left to the correction
     assert run("identify", tmp_path / "bench.csv", "-o", tmp_path / "model.json", "--quiet", "--maxiter", 60) == 0
     assert json.loads((tmp_path / "model.json").read_text())["model_error"]["sets"]
     capsys.readouterr()
@@ -219,3 +221,20 @@ def test_predict_adds_the_bench_correction_the_model_carries_when_asked(tmp_path
                                      - w[200:]) ** 2))) for k in "cb"}
     assert rms["b"] > 0.1  # the bare model misses the sweep by far more than the noise
     assert rms["c"] < 0.5 * rms["b"]
+
+
+def test_identify_writes_the_rigs_transport_delay_and_predict_applies_it(tmp_path, capsys):
+    # the bench's servo answers 40 ms late: the model carries the delay, and a prediction of another log uses it
+    for name, argv in (("bench", ["--duration", 40, "--seed", 3]), ("check", ["--duration", 20, "--seed", 4])):
+        assert run("simulate", "-o", tmp_path / f"{name}.csv", "--rate", 200, "--noise", 0.03, "--effects",
+                   "delay_s=0.04", *argv) == 0
+    assert run("identify", tmp_path / "bench.csv", "-o", tmp_path / "model.json", "--quiet", "--maxiter", 60,
+               "--max-delay", 0.16) == 0
+    assert "transport delay" in capsys.readouterr().out
+    m = json.loads((tmp_path / "model.json").read_text())
+    assert m["effects"]["delay"]["delay_s"] == pytest.approx(0.04, abs=0.008)
+    assert m["fit"]["delay_s"] == m["effects"]["delay"]["delay_s"]
+    assert run("predict", tmp_path / "check.csv", "--model", tmp_path / "model.json", "-o", tmp_path / "p.csv") == 0
+    w = np.loadtxt(tmp_path / "check.csv", delimiter=",", skiprows=1)[:, 2]
+    e = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[200:, 1] - w[200:]
+    assert float(np.sqrt(np.mean(e ** 2))) < 2.0 * 0.03

@@ -163,6 +163,19 @@ def test_diagnosis_is_relative_to_the_effects_the_model_carries():
     assert d.model.effects.delay_s == pytest.approx(0.04)
 
 
+def test_a_field_delay_on_top_of_the_rigs_own_is_reported_beside_it():
+    # identify keeps the rig's transport delay in the model; the field's longer one is named with the model's
+    carried = Effects(delay_s=0.02)
+    t, u, w, v = make_log(Effects(delay_s=0.08), seed=14)
+    mf = nominal_model()
+    mf.effects = carried
+    d = diagnose(t, u, w, v, mf)
+    assert d.verdict == ["delay"]
+    assert d.model.effects.delay_s == pytest.approx(0.08, abs=0.008)
+    assert any(line.strip().startswith("delay: delay_s 0.0") and "(the model had delay_s 0.02)" in line
+               for line in d.report["summary"])
+
+
 # ---- the command ---------------------------------------------------------------------------------
 
 def write_model(path, effects: Effects | None = None) -> None:

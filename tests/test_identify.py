@@ -41,6 +41,7 @@ def test_heldout_rms_within_1_2x_of_the_noise(fitted):
     assert res.heldout_rms < 1.2 * 0.05
     assert res.train_rms < 1.2 * 0.05
     assert res.linear_heldout_rms > 5 * res.heldout_rms  # hysteresis matters
+    assert res.delay_s == 0.0  # the log has no transport delay, and the scan adds none
 
 
 def test_reproduces_the_papers_loops(fitted):
@@ -231,3 +232,17 @@ def test_the_search_scores_a_bounded_part_of_a_reversal_dense_log():
     assert sum(reversal_indices(u[a:b]).size for a, b in ranges) <= 60 + 2 * len(ranges)
     assert all(b0 <= a1 for (_, b0), (a1, _) in zip(ranges[:-1], ranges[1:], strict=True))  # no overlap
     assert fit_stretches(u[:2000], 2000, 10_000) == [(0, 2000)]
+
+
+def test_a_transport_delay_in_front_of_the_hysteresis_is_found_not_widened_into_the_loop():
+    # the rig's servo and link: the warp follows the tendon command 30 ms late
+    from warpbridge.model.effects import delayed
+
+    u = filtered_random(T, 1.0, 2.5, offset=4.5, seed=1)
+    _, w = noisy_log(delayed(T, u, 0.03), 2)
+    res = identify(T, u, w, maxiter=60, max_delay_s=0.16)
+    assert res.delay_s == pytest.approx(0.03, abs=0.006)
+    assert res.heldout_rms < 1.2 * 0.05
+    without = identify(T, u, w, maxiter=60)  # the default searches none
+    assert without.delay_s == 0.0
+    assert without.heldout_rms > 1.5 * res.heldout_rms  # the loop widened to take up the lag fits worse

@@ -2,10 +2,13 @@
 
 Differential evolution then Nelder-Mead on the forward output error, the last
 part of the log held out, the initial hysteretic state estimated from the first
-samples; prints training and held-out RMS, the noise floor, a straight-line
-baseline fitted on the same training samples and whether the model beats it
-(if not, one line saying why the data do not support the model); ``--plot``
-draws measured vs model loops and time series. Every output path is checked
+samples, and with ``--max-delay`` a transport delay in front of the model (the
+rig's servo, link and sensor lag, written to the model's effects as
+``delay_s``); prints training
+and held-out RMS, the noise floor, a straight-line baseline fitted on the same
+training samples and whether the model beats it (if not, one line saying why
+the data do not support the model); ``--plot`` draws measured vs model loops
+and time series. Every output path is checked
 before the fit starts.
 """
 
@@ -22,10 +25,12 @@ import numpy as np
 
 from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.errors import UserError
+from warpbridge.model.effects import Effects
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+DIAGNOSE_MAX_DELAY_S = 0.16  # identify's delay search for a model that diagnose judges field logs against
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -36,6 +41,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--heldout", type=float, default=0.25, help="fraction of the log held out (default 0.25)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the search (default 0)")
     p.add_argument("--maxiter", type=int, default=150, help="most generations of the global search (default 150)")
+    p.add_argument("--max-delay", type=float, default=0.0,
+                   help="search a transport delay up to this long (s) in front of the model: the servo, link and "
+                        f"sensor lag of the rig; {DIAGNOSE_MAX_DELAY_S:g} for a model to diagnose with (default 0: "
+                        "none, the model the feed-forward flies best with)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -70,7 +79,8 @@ class Progress:
             return
         from tqdm import tqdm
 
-        label = {"search": "global search (DE)", "polish": "polish (Nelder-Mead)"}.get(stage, stage)
+        label = {"search": "global search (DE)", "polish": "polish (Nelder-Mead)",
+                 "delay": "transport delay scan"}.get(stage, stage)
         if not sys.stderr.isatty():  # a log file gets a line per quarter, not a redrawn bar
             q = 4 * i // max(n, 1)
             if stage != self.stage or q != getattr(self, "_q", -1):
@@ -100,6 +110,8 @@ def main(args: argparse.Namespace) -> int:
         raise UserError("--heldout must lie between 0.05 and 0.5")
     if args.maxiter < 1:
         raise UserError("--maxiter must be at least 1")
+    if not 0.0 <= args.max_delay <= 2.0:
+        raise UserError("--max-delay must lie between 0 and 2 s")
     data = read_log(args.log, wing=args.wing)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -107,7 +119,7 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         res = identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed, maxiter=args.maxiter,
-                       progress=progress)
+                       max_delay_s=args.max_delay, progress=progress)
     except ValueError as e:
         raise UserError(f"{args.log}: {e}") from None
     finally:
@@ -120,7 +132,7 @@ def main(args: argparse.Namespace) -> int:
             "created": datetime.now(UTC).isoformat(timespec="seconds"), "seed": args.seed}
     # z0 stays at rest: the state at the start of this log says nothing about another log's (predict
     # and diagnose estimate it from each log's first samples); the fit record keeps this log's
-    mf = ModelFile(params=res.params, fit=fit, meta=meta)
+    mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s), fit=fit, meta=meta)
     mf.model_error = bench_model_error(mf, data)
     save_model(args.output, mf)
     if args.plot:
@@ -137,6 +149,9 @@ def main(args: argparse.Namespace) -> int:
     print(f"  straight-line baseline (fitted on the same training samples) held-out RMS "
           f"{res.linear_heldout_rms:.4f} deg")
     p = res.params
+    if res.delay_s > 0:
+        print(f"  transport delay {1e3 * res.delay_s:.1f} ms in front of the model (the rig's servo, link and sensor "
+              "lag; effects.delay_s)")
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
     if res.support is not None and not res.support.supported:
