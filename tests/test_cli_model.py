@@ -238,3 +238,15 @@ def test_identify_writes_the_rigs_transport_delay_and_predict_applies_it(tmp_pat
     w = np.loadtxt(tmp_path / "check.csv", delimiter=",", skiprows=1)[:, 2]
     e = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[200:, 1] - w[200:]
     assert float(np.sqrt(np.mean(e ** 2))) < 2.0 * 0.03
+
+
+def test_max_delay_is_checked_against_the_scans_grid(tmp_path, capsys):
+    from warpbridge.bridge.commands.identify import MAX_DELAY_S
+    from warpbridge.model.identify import DELAY_GRID_S
+
+    assert MAX_DELAY_S == DELAY_GRID_S[-1]
+    assert run("simulate", "-o", tmp_path / "b.csv", "--rate", 100, "--duration", 5) == 0
+    capsys.readouterr()
+    assert run("identify", tmp_path / "b.csv", "-o", tmp_path / "m.json", "--max-delay", 0.5) != 0
+    assert "--max-delay must lie between 0 and 0.16 s" in capsys.readouterr().err
+    assert not (tmp_path / "m.json").exists()

@@ -4,12 +4,11 @@ Differential evolution then Nelder-Mead on the forward output error, the last
 part of the log held out, the initial hysteretic state estimated from the first
 samples, and with ``--max-delay`` a transport delay in front of the model (the
 rig's servo, link and sensor lag, written to the model's effects as
-``delay_s``); prints training
-and held-out RMS, the noise floor, a straight-line baseline fitted on the same
-training samples and whether the model beats it (if not, one line saying why
-the data do not support the model); ``--plot`` draws measured vs model loops
-and time series. Every output path is checked
-before the fit starts.
+``delay_s``); prints training and held-out RMS, the noise floor, a
+straight-line baseline fitted on the same training samples and whether the
+model beats it (if not, one line saying why the data do not support the model);
+``--plot`` draws measured vs model loops and time series. Every output path is
+checked before the fit starts.
 """
 
 from __future__ import annotations
@@ -31,6 +30,7 @@ from warpbridge.model.modelfile import ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 DIAGNOSE_MAX_DELAY_S = 0.16  # identify's delay search for a model that diagnose judges field logs against
+MAX_DELAY_S = 0.16  # the longest delay of model.identify.DELAY_GRID_S (not imported: it would load numba here)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -110,8 +110,8 @@ def main(args: argparse.Namespace) -> int:
         raise UserError("--heldout must lie between 0.05 and 0.5")
     if args.maxiter < 1:
         raise UserError("--maxiter must be at least 1")
-    if not 0.0 <= args.max_delay <= 2.0:
-        raise UserError("--max-delay must lie between 0 and 2 s")
+    if not 0.0 <= args.max_delay <= MAX_DELAY_S:
+        raise UserError(f"--max-delay must lie between 0 and {MAX_DELAY_S:g} s (the longest delay the scan tries)")
     data = read_log(args.log, wing=args.wing)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
