@@ -30,7 +30,7 @@ from warpbridge.model.modelfile import ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 DIAGNOSE_MAX_DELAY_S = 0.16  # identify's delay search for a model that diagnose judges field logs against
-MAX_DELAY_S = 0.16  # the longest delay of model.identify.DELAY_GRID_S (not imported: it would load numba here)
+MAX_DELAY_S = 0.16  # the longest delay of model.identify.DELAY_GRID_S (a test holds them equal)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
