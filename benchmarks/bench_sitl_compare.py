@@ -63,6 +63,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     ap.add_argument("--model", type=Path, default=None, help="use this MODEL.json instead of identifying the bench log")
     ap.add_argument("--out", type=Path, default=None, help="keep the bench log and model here")
+    ap.add_argument("--max-delay", type=float, default=0.0,
+                    help="identify the bench log with this transport delay search (default 0: none, as the bridge's "
+                         "model is identified)")
     args = ap.parse_args()
 
     t_start = time.perf_counter()
@@ -71,7 +74,7 @@ def main() -> None:
     out = args.out or Path(tempfile.mkdtemp(prefix="bench-sitl-compare-"))
     if args.model is None:
         print(f"recording the bench log and identifying it in {out} ...", file=sys.stderr, flush=True)
-        model = identify_bench(bench, out)
+        model = identify_bench(bench, out, max_delay=args.max_delay)
         ident = (out / "identify.txt").read_text(encoding="utf-8").strip()
     else:
         model, ident = args.model, f"model given: {args.model}"

@@ -55,13 +55,15 @@ def write_bench_log(params, path: Path, *, max_warp_deg: float = 12.0, seconds: 
     return path
 
 
-def identify_bench(params, out_dir: Path, *, seed: int = 0, seconds: float = 90.0, quiet: bool = True) -> Path:
-    """Record the bench log into ``out_dir`` and run ``warpbridge identify`` on it; returns MODEL.json."""
+def identify_bench(params, out_dir: Path, *, seed: int = 0, seconds: float = 90.0, quiet: bool = True,
+                   max_delay: float = 0.0) -> Path:
+    """Record the bench log into ``out_dir`` and run ``warpbridge identify`` on it (``--max-delay``
+    ``max_delay``); returns MODEL.json."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv = write_bench_log(params, out_dir / "bench.csv", seconds=seconds, seed=seed)
     model = out_dir / "wing.json"
     cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "identify", str(csv), "-o", str(model),
-           "--seed", str(seed)] + (["--quiet"] if quiet else [])
+           "--seed", str(seed), "--max-delay", str(max_delay)] + (["--quiet"] if quiet else [])
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"identify failed on the bench log: {r.stderr.strip()[-500:]}")

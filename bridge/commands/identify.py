@@ -25,12 +25,12 @@ import numpy as np
 from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.effects import Effects
+from warpbridge.model.identify import DELAY_GRID_S, identify
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
-DIAGNOSE_MAX_DELAY_S = 0.16  # identify's delay search for a model that diagnose judges field logs against
-MAX_DELAY_S = 0.16  # the longest delay of model.identify.DELAY_GRID_S (a test holds them equal)
+MAX_DELAY_S = DELAY_GRID_S[-1]  # the longest delay the scan tries: the search a model to diagnose with needs
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--maxiter", type=int, default=150, help="most generations of the global search (default 150)")
     p.add_argument("--max-delay", type=float, default=0.0,
                    help="search a transport delay up to this long (s) in front of the model: the servo, link and "
-                        f"sensor lag of the rig; {DIAGNOSE_MAX_DELAY_S:g} for a model to diagnose with (default 0: "
+                        f"sensor lag of the rig; {MAX_DELAY_S:g} for a model to diagnose with (default 0: "
                         "none, the model the feed-forward flies best with)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -102,7 +102,6 @@ class Progress:
 
 def main(args: argparse.Namespace) -> int:
     from warpbridge.bridge.commands.modelio import save_model
-    from warpbridge.model.identify import identify
     from warpbridge.model.modelfile import FitQuality
 
     check_outputs({"-o": args.output, "--plot": args.plot}, plots=("--plot",))
