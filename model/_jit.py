@@ -16,8 +16,11 @@ Interpreted kernels are the very same function objects, undecorated, with
 
 from __future__ import annotations
 
+import hashlib
 import os
+import shutil
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 _ENV = os.environ.get("WARPBRIDGE_JIT", "").strip().lower()
@@ -55,6 +58,51 @@ def vector(p: Any) -> Any:
     return p if _mode == "compiled" else [float(x) for x in p]
 
 
+KERNEL_DIRS = ("model", "sitl")  # package folders whose sources the compiled kernels are made of
+CACHE_PREFIX = "kernels-"
+_cache_set = False
+
+
+def kernel_fingerprint(root: Path | None = None) -> str:
+    """A hash of every source file the compiled kernels may be made of (``KERNEL_DIRS`` of the package)."""
+    root = root or Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for d in KERNEL_DIRS:
+        for f in sorted((root / d).glob("*.py")):
+            h.update(f"{d}/{f.name}\0".encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def versioned_cache_dir(base: Path, fingerprint: str) -> Path:
+    """The folder for kernels compiled from sources with ``fingerprint``, under ``base``; the folders of
+    other sources there are removed (best effort)."""
+    target = base / f"{CACHE_PREFIX}{fingerprint}"
+    if base.is_dir():
+        for old in base.glob(f"{CACHE_PREFIX}*"):
+            if old != target and old.is_dir():
+                shutil.rmtree(old, ignore_errors=True)
+    return target
+
+
+def _use_versioned_cache(numba: Any) -> None:
+    """Point numba's compile cache at a folder named after the kernels' sources.
+
+    numba checks a cached kernel against its own file only: a kernel that calls (and inlines) one from
+    another file keeps the old callee after that file changes, as after an upgrade. A folder per
+    fingerprint of all kernel sources never serves such a stale kernel. Under ``NUMBA_CACHE_DIR`` when set,
+    else beside the sources (numba's own default place)."""
+    global _cache_set
+    if _cache_set:
+        return
+    _cache_set = True
+    base = Path(numba.config.CACHE_DIR) if numba.config.CACHE_DIR else Path(__file__).resolve().parent / "__pycache__"
+    try:
+        numba.config.CACHE_DIR = str(versioned_cache_dir(base, kernel_fingerprint()))
+    except OSError:  # unreadable sources: leave numba's own choice
+        pass
+
+
 def njit(*args: Any, **options: Any) -> Any:
     """``numba.njit`` (bare or with options) in compiled mode; the undecorated function otherwise."""
     global _decorated
@@ -62,6 +110,7 @@ def njit(*args: Any, **options: Any) -> Any:
     if _mode == "compiled":
         import numba
 
+        _use_versioned_cache(numba)
         return numba.njit(*args, **options)
     if len(args) == 1 and callable(args[0]) and not options:
         return args[0]
@@ -80,5 +129,6 @@ def __getattr__(name: str) -> Any:
     if _mode == "compiled":
         import numba
 
+        _use_versioned_cache(numba)
         return numba.prange
     return range

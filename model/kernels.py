@@ -211,7 +211,10 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
         if not implicit:
             # where z moves far relative to itself (leaving 0 after a reversal, or from rest), the
             # stiffness at the start says little: bound the step by the stiffness where an Euler
-            # step would land, so RK4 never jumps from the soft middle into the stiff saturation
+            # step would land, so RK4 never jumps from the soft middle into the stiff saturation.
+            # The bound shrinks the step at most by half at a time: the bound at the landing point of
+            # a long step (deep in the saturation) is far shorter than the one at the landing point of
+            # the step it leads to, and taking it at once crawls through the middle of a stiff model
             for _ in range(60):
                 if h * abs(k1) <= 0.25 * az:
                     break
@@ -227,7 +230,7 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
                 h_lim = _rk4_limit(je, max(abs(k1), abs(A - zne * psie)), h, tol)
                 if h <= h_lim:
                     break
-                h = h_lim
+                h = max(h_lim, 0.5 * h)
                 last = False
         hs = h * sdw
         order = 4

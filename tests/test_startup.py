@@ -17,6 +17,7 @@ from helpers import free_udp_port
 from warpbridge.bridge import jitcache
 from warpbridge.bridge.config import ControlConfig, ServoCal, load_config
 from warpbridge.bridge.startup import PAPER_CENTRE, centre_line, load_model, neutral_pulses, neutral_tendon_mm
+from warpbridge.model import _jit
 from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.model.effects import Effects
 from warpbridge.model.modelfile import ModelFile
@@ -210,3 +211,37 @@ def test_numba_really_compiles_into_the_chosen_directory(tmp_path):
                        env={**os.environ, "NUMBA_CACHE_DIR": str(cache), "WARPBRIDGE_JIT": "1"})
     assert r.returncode == 0, r.stderr
     assert any(p.suffix == ".nbi" for p in cache.rglob("*")), sorted(cache.rglob("*"))
+    # in the folder of the kernels' current sources: a kernel is never served from another version's cache
+    dirs = {p.relative_to(cache).parts[0] for p in cache.rglob("*.nbi")}
+    assert dirs == {f"kernels-{_jit.kernel_fingerprint()}"}, dirs
+
+
+def _kernel_tree(root: Path) -> None:
+    for d, body in (("model", "def f():\n    return 1\n"), ("sitl", "X = 2\n")):
+        (root / d).mkdir(parents=True, exist_ok=True)
+        (root / d / "k.py").write_text(body)
+
+
+def test_kernel_fingerprint_follows_every_kernel_source(tmp_path):
+    _kernel_tree(tmp_path)
+    before = _jit.kernel_fingerprint(tmp_path)
+    assert _jit.kernel_fingerprint(tmp_path) == before
+    (tmp_path / "model" / "k.py").write_text("def f():\n    return 2\n")  # a callee changed (an upgrade)
+    changed = _jit.kernel_fingerprint(tmp_path)
+    assert changed != before
+    (tmp_path / "sitl" / "k.py").write_text("X = 3\n")
+    last = _jit.kernel_fingerprint(tmp_path)
+    assert last not in (before, changed)
+    (tmp_path / "docs").mkdir()  # outside the kernel folders: no recompile
+    (tmp_path / "docs" / "k.py").write_text("not a kernel\n")
+    assert _jit.kernel_fingerprint(tmp_path) == last
+
+
+def test_versioned_cache_dir_drops_other_versions_only(tmp_path):
+    (tmp_path / "kernels-old" / "x").mkdir(parents=True)
+    (tmp_path / "kernels-new").mkdir()
+    (tmp_path / "mine").mkdir()
+    got = _jit.versioned_cache_dir(tmp_path, "new")
+    assert got == tmp_path / "kernels-new" and got.is_dir()
+    assert not (tmp_path / "kernels-old").exists() and (tmp_path / "mine").is_dir()
+    assert _jit.versioned_cache_dir(tmp_path / "absent", "v") == tmp_path / "absent" / "kernels-v"
