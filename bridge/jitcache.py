@@ -1,8 +1,9 @@
 """Where numba keeps the compiled model kernels: a writable place, chosen before numba is imported.
 
 numba caches each compiled kernel beside its source (``__pycache__`` in the
-package directory) and, when that is not writable, under the user's cache
-directory. A system-wide install (read-only site-packages) started by systemd
+package directory; ``model._jit`` puts it in a folder per version of the kernel
+sources there, or under ``NUMBA_CACHE_DIR``) and, when that is not writable,
+under the user's cache directory. A system-wide install (read-only site-packages) started by systemd
 as a user without a home has neither: the kernels are then compiled again at
 every start (tens of seconds on a small board) or the first compile fails
 ("no locator available"). ``configure()`` sets ``NUMBA_CACHE_DIR`` when the
