@@ -227,6 +227,25 @@ def test_a_diverging_candidate_is_rejected_within_its_budget():
     assert st != 0 and used <= budget
 
 
+def test_a_stiff_loop_is_crossed_in_a_few_sub_steps():
+    """A candidate the diagnosis drew on a stiff identified Dahl model (n = 5, b ~ 1e18): one sample runs from
+    the unloading saturation through the loop to the loading one. The sub-step bound at an Euler step's
+    landing point once took a long step's bound (deep in the saturation) at once and crawled through the
+    loop's middle in steps of 1e-8 deg: 20,000 sub-steps and a failed solve. The solve takes a few dozen
+    and lands where a march at a 10,000x tighter tolerance does."""
+    from warpbridge.model import kernels as K
+
+    p = np.array([-0.01841547570872456, 0.9777738453033814, -0.6393145811716142, 1.0, 250.3694486717001,
+                  4.999995199103737, 1.1775250569895537e18, 5.887625244798351e17, -5.879729715658113e17,
+                  5.887625244798351e17, -5.879729715658113e17, -1.1759459511503194e18])
+    w0, z0, u = 5.552245952957112, -0.016006925314893422, 4.236891460819856
+    w, z, _, status, used = K._forward_solve(p, w0, z0, -1.0, u, -1, K.TOL_Z)
+    assert status == 0 and used < 200
+    assert abs(K.output_u(p, w, z) - u) < 1e-9
+    z_ref = K._march(p, w0, z0, -1.0, w, 10 ** 7, 1e-12)[0]
+    assert abs(z - z_ref) < 1e-8 * abs(z_ref) + 1e-12
+
+
 def test_the_search_scores_a_bounded_part_of_a_reversal_dense_log():
     u = filtered_random(np.arange(0, 60 * 500) / 500.0, 5.0, 2.5, offset=4.5, seed=2)
     n_end = int(0.75 * u.size)
