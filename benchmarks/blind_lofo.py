@@ -107,7 +107,7 @@ def fold_table(folds: dict, seeds: list[int]) -> str:
     for fam, (dk, rs) in folds.items():
         d = json.loads(dk)
         dtxt = f"alpha {d['alpha']:g}, share {d['min_share']:g}, gain {d['min_gain']:g}" + (
-            ", parsimony" if d.get("parsimony") else "")
+            ", parsimony" if d.get("parsimony") else "") + (f", total {d['min_total']:g}" if d.get("min_total") else "")
         for seed in [*seeds, None]:
             sub = [r for r in rs if seed is None or r["seed"] == seed]
             if not sub:

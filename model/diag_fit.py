@@ -177,7 +177,7 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
     if name == "backlash":
         return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
     if name == "friction":
-        return [Box("friction_scale", 0.2, 5.0, log=True), Box("friction_pivot", -1.0, 1.0)]
+        return [Box("friction_scale", 0.01, 10.0, log=True), Box("friction_pivot", -1.0, 1.0)]
     if name == "capstan":  # the second form of friction (``forms_for``): the stall's zero below the log's travel
         return [Box("capstan_pull_ratio", 1e-4, 0.3, log=True, neutral_at_lo=True),
                 Box("capstan_zero_mm", lo_u - 2.0 * span, lo_u),

@@ -450,3 +450,24 @@ def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
             assert d.verdict == want, (eff, parsimony, d.verdict)
             equal = [set(a["equally_good"]) for a in d.report["ambiguities"]]
             assert equal == ([{"friction", "backlash"}] if eff is slight else []), equal
+
+
+def test_an_effect_that_closes_little_of_the_nominals_gap_is_not_named_under_min_total():
+    """A slight sensor lag beside a drift a hundred times its size: significant on its own, so named by default,
+    but it closes under 3 % of the gap the nominal leaves, so not with ``min_total = 0.03``; a lag of the drift's
+    size is named either way."""
+    from warpbridge.model.diagnose import Decision
+
+    for lag, with_total in ((0.02, ["drift"]), (0.1, ["drift", "sensor_lag"])):
+        t, u, w, v = make_log(Effects(drift_deg_s=0.2, sensor_tau_s=lag), seed=3)
+        verdicts = [sorted(diagnose(t, u, w, v, nominal_model(),
+                                    DiagnoseOptions(decision=Decision(min_total=m))).verdict) for m in (0.0, 0.03)]
+        assert verdicts == [["drift", "sensor_lag"], with_total], (lag, verdicts)
+
+
+def test_min_total_round_trips_and_is_left_out_at_zero():
+    from warpbridge.model.diagnose import Decision
+
+    assert "min_total" not in Decision().to_dict()
+    d = Decision(alpha=0.01, min_total=0.03)
+    assert Decision.from_dict(d.to_dict()) == d and d.to_dict()["min_total"] == 0.03
