@@ -427,6 +427,8 @@ def main() -> None:
     print("\nthe nominal model on the check logs without effects (another excitation, RMS after the first "
           f"{CHECK_SKIP_S:g} s): bare (predict) and with its model-error correction (predict --correction)")
     print(blind_lofo.check_log_table(results))
+    print("\nthe decision's switches (each fold's decision with one forced on, scored as the pooled table)")
+    print(blind_lofo.switch_table(folds))
     print("\nwith the shipped default decision " + default + ":")
     rt = blind_lofo.rates(results, default)
     print(f"  singles {rt['single_ok']}/{rt['singles']}, pairs {rt['pair_ok']}/{rt['pairs']}, false alarms "

@@ -258,3 +258,35 @@ def check_log_table(results: list[dict]) -> str:
         lines.append(f"{fam:<20} {len(v):>6} {np.median(v[:, 0]):>18.3f} {np.median(v[:, 1]):>10.3f} "
                      f"{np.median(v[:, 1] / v[:, 0]):>13.2f} {int(np.sum(v[:, 1] < v[:, 0])):>4}/{len(v):<3}")
     return "\n".join(lines)
+
+
+SWITCHES = (("min_total", 0.03), ("parsimony", True))  # the decision's switches, as the grid offers them
+
+
+def switch_table(folds: dict) -> str:
+    """Each fold's decision with one switch of the grid forced on, scored on its held-out family as the
+    pooled table is: what a switch no fold chose would have given."""
+    lines = [f"{'each fold decision':<28} {'singles exact':>16} {'pairs exact':>14} {'false alarms':>13}   "
+             "per family (singles/pairs)"]
+    for label, sw in [("as chosen", None), *((f"with {k} {v}", (k, v)) for k, v in SWITCHES)]:
+        tot = {"singles": 0, "single_ok": 0, "pairs": 0, "pair_ok": 0, "nones": 0, "false_alarms": 0}
+        per = []
+        missing = False
+        for fam, (dk, rs) in folds.items():
+            d = json.loads(dk)
+            if sw is not None:
+                d[sw[0]] = sw[1]
+            k = key(d)
+            if any(k not in r["by_decision"] for r in rs):
+                missing = True
+                break
+            rt = rates(rs, k)
+            for f in tot:
+                tot[f] += rt[f]
+            per.append(f"{fam} {rt['single_ok']}/{rt['pair_ok']}")
+        if missing:  # results from before the grid had this switch
+            continue
+        lines.append(f"{label:<28} {_pct(tot['single_ok'], tot['singles']):>16} "
+                     f"{_pct(tot['pair_ok'], tot['pairs']):>14} {_pct(tot['false_alarms'], tot['nones']):>13}   "
+                     + ", ".join(per))
+    return "\n".join(lines)
