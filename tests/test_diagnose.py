@@ -471,3 +471,13 @@ def test_min_total_round_trips_and_is_left_out_at_zero():
     assert "min_total" not in Decision().to_dict()
     d = Decision(alpha=0.01, min_total=0.03)
     assert Decision.from_dict(d.to_dict()) == d and d.to_dict()["min_total"] == 0.03
+
+
+def test_a_friction_all_but_gone_is_sized_inside_the_search():
+    """A loop shrunk to 6 % of its width: named friction alone, its scale recovered, not at a bound (the old
+    search stopped at 0.2 and reported the bound)."""
+    t, u, w, v = make_log(Effects(friction_scale=0.06), seed=5)
+    d = diagnose(t, u, w, v, nominal_model())
+    assert d.verdict == ["friction"]
+    assert d.model.effects.friction_scale == pytest.approx(0.06, rel=0.1)
+    assert not d.report["bound_hits"]
