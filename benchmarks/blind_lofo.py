@@ -122,20 +122,30 @@ def fold_table(folds: dict, seeds: list[int]) -> str:
     return "\n".join(lines)
 
 
+COUNTS = ("singles", "single_ok", "pairs", "pair_ok", "nones", "false_alarms")
+
+
+def summed_rates(scored: Iterable[tuple[str, list[dict]]]) -> dict:
+    """The counts of ``rates`` added up over (decision, results) pairs: each fold's cases with its decision."""
+    tot = dict.fromkeys(COUNTS, 0)
+    for dk, rs in scored:
+        rt = rates(rs, dk)
+        for k in COUNTS:
+            tot[k] += rt[k]
+    return tot
+
+
 def pooled_table(folds: dict, seeds: list[int]) -> str:
     """Pooled held-out figures (each case scored with the decision of its own fold), per seed, with targets."""
     lines = [f"{'pooled (each family held out)':<34} " + " ".join(f"{f'seed {s}':>16}" for s in seeds)
              + f" {'all':>16}   target"]
 
     def pooled(seed):
-        tot = {"singles": 0, "single_ok": 0, "pairs": 0, "pair_ok": 0, "nones": 0, "false_alarms": 0}
+        subs = [(dk, [r for r in rs if seed is None or r["seed"] == seed]) for dk, rs in folds.values()]
+        tot = summed_rates(subs)
         clear = {"clear": 0, "clear_ok": 0}
         closed = []
-        for dk, rs in folds.values():
-            sub = [r for r in rs if seed is None or r["seed"] == seed]
-            rt = rates(sub, dk)
-            for k in tot:
-                tot[k] += rt[k]
+        for dk, sub in subs:
             closed += [(c, closed_at(r, dk, bare=True)) for r in sub
                        if len(r["truth"]) == 1 and (c := closed_at(r, dk)) is not None]
             # the issue's condition: an effect well above what the nominal model got wrong on the bench
@@ -260,32 +270,25 @@ def check_log_table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-SWITCHES = (("min_total", 0.03), ("parsimony", True))  # the decision's switches, as the grid offers them
+SWITCHES = ("min_total", "parsimony")  # the decision's switches; their values are those the results' grid holds
 
 
 def switch_table(folds: dict) -> str:
-    """Each fold's decision with one switch of the grid forced on, scored on its held-out family as the
-    pooled table is: what a switch no fold chose would have given."""
+    """Each fold's decision with one switch of the grid forced on (each value the results hold), scored on its
+    held-out family as the pooled table is: what a switch no fold chose would have given."""
+    keys = {dk for _, rs in folds.values() for r in rs for dk in r["by_decision"]}
+    values = sorted({(sw, json.loads(dk)[sw]) for dk in keys for sw in SWITCHES if json.loads(dk).get(sw)})
     lines = [f"{'each fold decision':<28} {'singles exact':>16} {'pairs exact':>14} {'false alarms':>13}   "
              "per family (singles/pairs)"]
-    for label, sw in [("as chosen", None), *((f"with {k} {v}", (k, v)) for k, v in SWITCHES)]:
-        tot = {"singles": 0, "single_ok": 0, "pairs": 0, "pair_ok": 0, "nones": 0, "false_alarms": 0}
-        per = []
-        missing = False
+    for label, sw in [("as chosen", None), *((f"with {k} {v}", (k, v)) for k, v in values)]:
+        scored = {}
         for fam, (dk, rs) in folds.items():
-            d = json.loads(dk)
-            if sw is not None:
-                d[sw[0]] = sw[1]
-            k = key(d)
-            if any(k not in r["by_decision"] for r in rs):
-                missing = True
-                break
-            rt = rates(rs, k)
-            for f in tot:
-                tot[f] += rt[f]
-            per.append(f"{fam} {rt['single_ok']}/{rt['pair_ok']}")
-        if missing:  # results from before the grid had this switch
-            continue
+            d = json.loads(dk) | (dict([sw]) if sw else {})
+            scored[fam] = (key(d), rs)
+        if any(k not in r["by_decision"] for k, rs in scored.values() for r in rs):
+            continue  # a fold's decision with this switch is not in every result's grid
+        tot = summed_rates(scored.values())
+        per = [f"{fam} {rates(rs, k)['single_ok']}/{rates(rs, k)['pair_ok']}" for fam, (k, rs) in scored.items()]
         lines.append(f"{label:<28} {_pct(tot['single_ok'], tot['singles']):>16} "
                      f"{_pct(tot['pair_ok'], tot['pairs']):>14} {_pct(tot['false_alarms'], tot['nones']):>13}   "
                      + ", ".join(per))
