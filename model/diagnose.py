@@ -23,7 +23,11 @@
    Bonferroni over the effects tried), material against the floor, and closing
    a share of the gap the round starts from. The same test admits the first
    effect, every later one, and keeps each in a backward pass (refit without
-   it); a final joint refit polishes the chosen parameters. Candidates whose
+   it); a final joint refit polishes the chosen parameters. When no effect
+   passes alone, two that hide each other (each leaves the other's slow,
+   structured error, which weakens its evidence) may enter together: the pair
+   passes the test against the nominal and each passes it once the other is
+   fitted (``enter_together``). Candidates whose
    held-out error is statistically indistinguishable from the chosen one are
    reported as ambiguous, with the excitation that would separate them; a
    parameter fitted at a bound of its search is reported and halves the
@@ -321,11 +325,12 @@ class Path:
     start_mse: list[float]
     dropped: list[dict]
     notes: list[str]
+    together: dict[str, PairedGain] = field(default_factory=dict)  # entered as a pair: its test given the other
 
 
 def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
-    """Greedy forward selection under decision ``d`` (with a beam of two in round 2), a backward pass with
-    the same test, then a joint refit."""
+    """Greedy forward selection under decision ``d`` (with a beam of two in round 2, and a pair entering
+    together when no effect passes alone), a backward pass with the same test, then a joint refit."""
     sel: tuple[str, ...] = ()
     cur = ex.nominal
     chosen_round: dict[str, int] = {}
@@ -333,10 +338,27 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     start_mse: list[float] = []
     notes: list[str] = []
     runner_up: Judged | None = None
+    together: dict[str, PairedGain] = {}
     for rnd in range(min(max_effects, len(ex.names))):
+        if len(sel) >= max_effects:
+            break
         judged = ex.round(sel)
         start_mse.append(cur.score_mse)
         acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain)]
+        if not acc and not sel and max_effects >= 2:
+            pair = enter_together(ex, d, judged)
+            if pair is not None:
+                lead, second, g_lead = pair
+                notes.append(f"no effect alone passed the test, but {lead.name} and {second.name} together do, "
+                             f"and each adds a significant, material share once the other is fitted: each hides "
+                             f"the other")
+                sel = (lead.name, second.name)
+                chosen_round = {lead.name: 1, second.name: 2}
+                chosen_from = {lead.name: ex.nominal, second.name: lead.fit}
+                start_mse.append(lead.fit.score_mse)
+                together = {lead.name: g_lead, second.name: second.gain}
+                cur = second.fit
+                continue
         if rnd == 1 and runner_up is not None:
             # a beam of two in the second round: the first round's winner may imitate two effects at once,
             # and then only its runner-up leads to the right pair
@@ -367,8 +389,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                             key=lambda j: -j.penalised)
             runner_up = others[0] if others else None
         chosen_from[best.name] = cur
+        chosen_round[best.name] = len(sel) + 1
         sel = sel + (best.name,)
-        chosen_round[best.name] = rnd + 1
         cur = best.fit
     dropped: list[dict] = []
     changed = True
@@ -387,9 +409,36 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                 cur = f
                 changed = True
                 break
+    if len(sel) == 1 and sel[0] in together and not ex.admits(d, ex.nominal, cur):
+        # what is left of a pair that entered together was never admitted alone
+        dropped.append({"effect": sel[0], "reason": "entered together with an effect the backward pass dropped, "
+                                                    "and alone it adds no significant, material share of the gap"})
+        sel, chosen_round, cur = (), {}, ex.nominal
+    together = {k: v for k, v in together.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
-    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes)
+    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together)
+
+
+def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
+    """Two effects that hide each other, when no effect alone passes the test: the unexplained one leaves
+    slow, structured error that weakens the evidence for the other. The first round's best candidate and a
+    second effect enter together when the pair passes the test against the nominal, the second passes it
+    against the first alone (as in round 2), and the first passes it against the second alone (as in the
+    backward pass). Returns (first, second, the first's gain given the second) or None."""
+    lead = max((j for j in judged if j.gain.gain > 0), key=lambda j: j.penalised, default=None)
+    if lead is None:
+        return None
+    seconds = sorted((j for j in ex.round((lead.name,))
+                      if ex.admits(d, lead.fit, j.fit, j.gain) and ex.admits(d, ex.nominal, j.fit)),
+                     key=lambda j: -j.penalised)
+    for second in seconds[:2]:
+        pair = (lead.name, second.name)
+        alone = ex.without(pair, lead.name, second.fit)
+        g = ex.gain(alone, second.fit)
+        if ex.admits(d, alone, second.fit, g):
+            return lead, second, g
+    return None
 
 
 def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
@@ -552,6 +601,9 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
             j.confidence = 0.0
             j.ambiguous_with_best = False
         if not acc:
+            if k < len(order) and order[k] in path.together:  # entered as a pair: its test given the other
+                j = next(j for j in judged if j.name == order[k])
+                j.confidence = chosen_conf[j.name] = 1.0 - path.together[j.name].p_value
             continue
         best = next((j for j in acc if k < len(order) and j.name == order[k]), max(acc, key=lambda j: j.penalised))
         floor_gain = d.min_gain * ex.floor2

@@ -481,3 +481,32 @@ def test_a_friction_all_but_gone_is_sized_inside_the_search():
     assert d.verdict == ["friction"]
     assert d.model.effects.friction_scale == pytest.approx(0.06, rel=0.1)
     assert not d.report["bound_hits"]
+
+
+def test_two_effects_that_hide_each_other_enter_together():
+    """A warming drift and an aerodynamic load of similar size: at a level stricter than either's evidence
+    alone, neither passes (each leaves the other's slow, structured error, which weakens its evidence), but
+    together they do, and each adds a significant share once the other is fitted. Before, nothing was named."""
+    from warpbridge.model.diagnose import Decision
+
+    t, u, w, v = make_log(Effects(drift_deg_s=0.15, drift_tau_s=10.0, aero_deg_per_kpa=10.0), seed=3)
+    alone = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(alpha=1e-8),
+                                                                  max_effects=1))
+    assert alone.verdict == []  # one effect at a time: neither passes
+    p_alone = {r["effect"]: r["alone"]["p_value"] for r in alone.report["candidates"] if r.get("alone")}
+    assert min(p_alone.values()) > 1e-8 / len(p_alone)
+    d = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(alpha=1e-8)))
+    assert sorted(d.verdict) == ["aero_load", "drift"]
+    assert any("together" in n for n in d.report["notes"]), d.report["notes"]
+    rows = {r["effect"]: r for r in d.report["candidates"]}
+    assert all(rows[n]["confidence"] > 0.5 for n in d.verdict), [rows[n]["confidence"] for n in d.verdict]
+    assert d.report["shrinkage"]["gap_closed"] > 0.95
+
+
+def test_nothing_enters_together_on_a_log_without_effects():
+    from warpbridge.model.diagnose import Decision
+
+    for seed in (3, 5):
+        t, u, w, v = make_log(Effects(), seed=seed)
+        for alpha in (1e-8, 0.05):
+            assert diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(alpha=alpha))).verdict == []
