@@ -326,6 +326,7 @@ class Path:
     dropped: list[dict]
     notes: list[str]
     together: dict[str, PairedGain] = field(default_factory=dict)  # entered as a pair: its test given the other
+    from_runner_up: bool = False  # round 2 went on from the first round's runner-up
 
 
 def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
@@ -339,6 +340,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     notes: list[str] = []
     runner_up: Judged | None = None
     together: dict[str, PairedGain] = {}
+    from_runner_up = False
     for rnd in range(min(max_effects, len(ex.names))):
         if len(sel) >= max_effects:
             break
@@ -372,6 +374,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                              f"{sel[0]}: together with a second effect it explains the log better")
                 chosen_round = {runner_up.name: 1}
                 chosen_from = {runner_up.name: ex.nominal}
+                from_runner_up = True
                 sel = (runner_up.name,)
                 cur = runner_up.fit
                 start_mse[-1] = cur.score_mse
@@ -417,7 +420,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     together = {k: v for k, v in together.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
-    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together)
+    from_runner_up = from_runner_up and bool(sel) and chosen_round.get(sel[0]) == 1
+    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up)
 
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
@@ -610,7 +614,9 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         support = {j.name: 1.0 - j.gain.p_value for j in judged}
         best_conf = support[best.name]
         for j in acc:
-            if j is best:
+            if j is best or (k == 0 and path.from_runner_up):
+                # the runner-up was taken for what it explains with a second effect: a candidate that explains
+                # more alone does not make it less likely
                 continue
             # is the better-scoring of the two better than the other? (best may be the simpler of equals)
             worse, better = (j, best) if j.fit.score_mse >= best.fit.score_mse else (best, j)
