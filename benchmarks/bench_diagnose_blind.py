@@ -429,6 +429,9 @@ def main() -> None:
     print(blind_lofo.check_log_table(results))
     print("\nthe decision's switches (each fold's decision with one forced on, scored as the pooled table)")
     print(blind_lofo.switch_table(folds))
+    print("\nclose calls (each fold's decision and the best-scoring other one, on the other families, that gives its "
+          "family a different result)")
+    print(blind_lofo.close_calls(results, folds))
     print("\nwith the shipped default decision " + default + ":")
     rt = blind_lofo.rates(results, default)
     print(f"  singles {rt['single_ok']}/{rt['singles']}, pairs {rt['pair_ok']}/{rt['pairs']}, false alarms "

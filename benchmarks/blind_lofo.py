@@ -100,14 +100,18 @@ def _ok(val: float, target: float, higher: bool) -> str:
     return "ok" if (val >= target if higher else val <= target) else "MISSED"
 
 
+def describe_decision(dk: str) -> str:
+    d = json.loads(dk)
+    return f"alpha {d['alpha']:g}, share {d['min_share']:g}, gain {d['min_gain']:g}" + (
+        ", parsimony" if d.get("parsimony") else "") + (f", total {d['min_total']:g}" if d.get("min_total") else "")
+
+
 def fold_table(folds: dict, seeds: list[int]) -> str:
     """Per held-out family and seed: the decision chosen without that family and the figures it gives."""
     lines = [f"{'held-out family':<20} {'seed':>4}  {'decision chosen on the others':<44} {'singles exact':>14} "
              f"{'pairs exact':>13} {'false alarms':>12} {'gap closed min / median':>24}"]
     for fam, (dk, rs) in folds.items():
-        d = json.loads(dk)
-        dtxt = f"alpha {d['alpha']:g}, share {d['min_share']:g}, gain {d['min_gain']:g}" + (
-            ", parsimony" if d.get("parsimony") else "") + (f", total {d['min_total']:g}" if d.get("min_total") else "")
+        dtxt = describe_decision(dk)
         for seed in [*seeds, None]:
             sub = [r for r in rs if seed is None or r["seed"] == seed]
             if not sub:
@@ -292,4 +296,28 @@ def switch_table(folds: dict) -> str:
         lines.append(f"{label:<28} {_pct(tot['single_ok'], tot['singles']):>16} "
                      f"{_pct(tot['pair_ok'], tot['pairs']):>14} {_pct(tot['false_alarms'], tot['nones']):>13}   "
                      + ", ".join(per))
+    return "\n".join(lines)
+
+
+def close_calls(results: list[dict], folds: dict) -> str:
+    """Per fold: the decision chosen and the best-scoring other decision on the same training families that
+    scores the held-out family differently (singles / pairs / false alarms, training and held out): how
+    near the choice was."""
+    decisions = sorted({dk for r in results for dk in r["by_decision"]})
+    lines = [f"{'held-out family':<20} {'':<10} {'decision':<44} {'others: s/p/fa':>16} {'held out: s/p/fa':>17}"]
+
+    def counts(rs: list[dict], dk: str) -> tuple[int, int, int]:
+        rt = rates(rs, dk)
+        return rt["single_ok"], rt["pair_ok"], rt["false_alarms"]
+
+    for fam, (dk, rs) in folds.items():
+        train = [r for r in results if r["family"] != fam]
+        chosen = counts(rs, dk)
+        ranked = sorted((d for d in decisions if d != dk), key=lambda d: -score(rates(train, d)))
+        alt = next((d for d in ranked if counts(rs, d) != chosen), None)
+        for label, d in (("chosen", dk), ("next other", alt)):
+            if d is None:
+                continue
+            lines.append(f"{fam if label == 'chosen' else '':<20} {label:<10} {describe_decision(d):<44} "
+                         f"{'/'.join(map(str, counts(train, d))):>16} {'/'.join(map(str, counts(rs, d))):>17}")
     return "\n".join(lines)
