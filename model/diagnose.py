@@ -325,7 +325,8 @@ class Path:
     start_mse: list[float]
     dropped: list[dict]
     notes: list[str]
-    together: dict[str, PairedGain] = field(default_factory=dict)  # entered as a pair: its test given the other
+    together: dict[str, PairedGain] = field(default_factory=dict)  # the first of a pair that entered together:
+    # its test given the second
     from_runner_up: bool = False  # round 2 went on from the first round's runner-up
 
 
@@ -340,6 +341,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     notes: list[str] = []
     runner_up: Judged | None = None
     together: dict[str, PairedGain] = {}
+    entered_together: tuple[str, ...] = ()
     from_runner_up = False
     for rnd in range(min(max_effects, len(ex.names))):
         if len(sel) >= max_effects:
@@ -358,7 +360,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                 chosen_round = {lead.name: 1, second.name: 2}
                 chosen_from = {lead.name: ex.nominal, second.name: lead.fit}
                 start_mse.append(lead.fit.score_mse)
-                together = {lead.name: g_lead, second.name: second.gain}
+                together = {lead.name: g_lead}
+                entered_together = sel
                 cur = second.fit
                 continue
         if rnd == 1 and runner_up is not None:
@@ -412,7 +415,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                 cur = f
                 changed = True
                 break
-    if len(sel) == 1 and sel[0] in together and not ex.admits(d, ex.nominal, cur):
+    if len(sel) == 1 and sel[0] in entered_together and not ex.admits(d, ex.nominal, cur):
         # what is left of a pair that entered together was never admitted alone
         dropped.append({"effect": sel[0], "reason": "entered together with an effect the backward pass dropped, "
                                                     "and alone it adds no significant, material share of the gap"})
@@ -613,11 +616,10 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         floor_gain = d.min_gain * ex.floor2
         support = {j.name: 1.0 - j.gain.p_value for j in judged}
         best_conf = support[best.name]
-        for j in acc:
-            if j is best or (k == 0 and path.from_runner_up):
-                # the runner-up was taken for what it explains with a second effect: a candidate that explains
-                # more alone does not make it less likely
-                continue
+        # a runner-up taken for what it explains with a second effect is not made less likely by a candidate
+        # that explains more alone
+        rivals = [] if k == 0 and path.from_runner_up else [j for j in acc if j is not best]
+        for j in rivals:
             # is the better-scoring of the two better than the other? (best may be the simpler of equals)
             worse, better = (j, best) if j.fit.score_mse >= best.fit.score_mse else (best, j)
             g = ex.gain(worse.fit, better.fit)
