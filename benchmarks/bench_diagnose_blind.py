@@ -55,6 +55,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -207,11 +208,25 @@ def predict_mse(log_csv: Path, model: Path, w: np.ndarray, t: np.ndarray, work: 
     return float(np.mean((w[keep] - wp[keep]) ** 2))
 
 
-def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...], case_seed: int, model: Path,
-             args, work: Path, timed: bool) -> dict:
+@dataclass
+class FieldCase:
+    """What a case's field log is drawn from; ``rng`` goes on to draw its check log."""
+
+    rng: np.random.Generator
+    noise: float
+    t: np.ndarray
+    u: np.ndarray
+    airspeed: np.ndarray
+    f_seed: int
+    spec: dict
+    mags: dict
+
+
+def field_case(plant: Family, case_seed: int, names: tuple[str, ...], duration: float, rate: float) -> FieldCase:
+    """The case's noise, input, airspeed and effect sizes (RMS change of the warp 2.5-15x the noise)."""
     rng = np.random.default_rng(case_seed)
     noise = float(rng.uniform(0.03, 0.05))
-    t = timebase(args.duration, args.rate)
+    t = timebase(duration, rate)
     u = excite(plant, t, "random", rng)
     v = airspeed_profile(t, rng.uniform(5, 9), rng.uniform(16, 22), int(rng.integers(1 << 30)))
     f_seed = int(rng.integers(1 << 30))
@@ -221,6 +236,13 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
         shape = (float(rng.uniform(-1, 1)), float(rng.uniform(-1, 1)))
         spec[n] = (magnitude_for(plant, n, m * noise, shape, t, u, v, f_seed), shape)
         mags[n] = m
+    return FieldCase(rng, noise, t, u, v, f_seed, spec, mags)
+
+
+def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...], case_seed: int, model: Path,
+             args, work: Path, timed: bool) -> dict:
+    fc = field_case(plant, case_seed, names, args.duration, args.rate)
+    rng, noise, t, u, v, f_seed, spec, mags = fc.rng, fc.noise, fc.t, fc.u, fc.airspeed, fc.f_seed, fc.spec, fc.mags
     fld = run_log(plant, t, u, v, spec, noise, f_seed)
     clean0 = run_log(plant, t, u, v, {}, 0.0, f_seed).w_clean
     tc = timebase(0.5 * args.duration, args.rate)

@@ -120,6 +120,13 @@ def pretension_of(spec: Spec, span: float) -> tuple[float, float]:
     return 0.2 * span * s * math.cos(th), math.exp(0.5 * s * math.sin(th))
 
 
+def aero_of(fam: Family, size: float, mix: float) -> tuple[float, float]:
+    """(c0, c1) of an aero load of ``size``: the load per kPa, and per kPa and deg of warp (``mix`` in [-1, 1]
+    shares the size between them)."""
+    m = 0.5 * (mix + 1.0)
+    return fam.aero_scale() * size * (1.0 - m), 0.1 * fam.aero_scale() * size * m
+
+
 def physical_path(fam: Family, t, u, airspeed, spec: Spec, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """link -> servo -> linkage -> core (friction, pre-tension, aero load) -> sensor filter -> drift."""
     t = np.ascontiguousarray(t, dtype=np.float64)
@@ -140,9 +147,7 @@ def physical_path(fam: Family, t, u, airspeed, spec: Spec, seed: int) -> tuple[n
     friction = math.exp(math.copysign(s, a))
     q = dynamic_pressure_kpa(airspeed) if airspeed is not None else np.zeros(t.size)
     s, _, mix = _size(spec, "aero_load")
-    m = 0.5 * (mix + 1.0)
-    aero = fam.aero_scale() * s * (1.0 - m), 0.1 * fam.aero_scale() * s * m  # per kPa, and per kPa and deg
-    w = fam.core(x, q, friction, pretension_of(spec, span), aero)
+    w = fam.core(x, q, friction, pretension_of(spec, span), aero_of(fam, s, mix))
     s, kappa, _ = _size(spec, "sensor_lag")
     taus = (b.sensor_tau_s,)
     if s > 0:

@@ -522,6 +522,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     notes = list(path.notes)
     for h in hits:
         notes.append(h["meaning"])
+    notes += tension_band_notes(selected)
     residual_is_noise = white.passed and indep.passed
     if not selected and not residual_is_noise:
         notes.append("the residual is structured but no effect explains a significant, material share of it: "
@@ -563,6 +564,32 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     }
     report["summary"] = summary_lines(report)
     return Diagnosis(list(selected), report, augmented, t, u, w, w_nom, w_aug, sp, cl)
+
+
+# a change of the tension the sheath carries changes its friction too (capstan law: the force a stretch of
+# sheath can hold grows with the tension through it): what changed it, and how to tell the two apart
+TENSION_CHANGES = {
+    "pretension": ("a re-tensioned rig", "measure the tendon's tension at rest against the bench's: a band that "
+                                         "changed in proportion to it is the tension's, one that changed more is "
+                                         "the sheath's own (its bend, routing, wear or lubrication)"),
+    "aero_load": ("a load on the wing", "compare stretches flown slow and fast: a band that grows with the "
+                                        "airspeed is the load's"),
+}
+BAND_EFFECTS = ("friction", "backlash")  # what a wider or narrower friction band is named as
+
+
+def tension_band_notes(selected: list[str]) -> list[str]:
+    """Notes for a band effect named together with a change of the tendon's tension: in a tendon sheath the
+    second may be the first's consequence, not a change of its own."""
+    band = [b for b in BAND_EFFECTS if b in selected]
+    notes = []
+    for cause, (what, check) in TENSION_CHANGES.items():
+        if cause in selected and band:
+            notes.append(f"{' and '.join(band)} named with {cause}: in a tendon sheath the friction grows with "
+                         f"the tension (capstan law), so {what} widens or narrows the hysteresis band too, and "
+                         f"the {' / '.join(band)} change may be the {cause}'s consequence rather than a change "
+                         f"of its own; to tell them apart, {check}")
+    return notes
 
 
 BOUND_CONFIDENCE = 0.5  # confidence factor of an effect whose fitted parameter sits at a bound of its search

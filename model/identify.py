@@ -75,6 +75,7 @@ THETA_NAMES = ("n", "log10_A", "log10_zsat_load", "log10_zsat_unload", "asinh_r_
 BOUNDS_ONE_SIDED = [(1.0, 5.0), (-2.0, 2.5), (-2.5, 0.5), (-2.5, 0.5), (-8.0, 0.85), (-8.0, 0.85),
                     (-1.5, 1.5), (-0.5, 3.0), (-2.0, 2.0)]
 BOUNDS_TWO_SIDED = BOUNDS_ONE_SIDED + [(-8.0, 8.0), (-8.0, 8.0)]
+EDGE_FRAC = 0.01  # a search result this close (share of the range) to the exponent's upper limit is at it
 
 
 @dataclass(frozen=True)
@@ -528,6 +529,8 @@ class SearchTrace:
     spread: list[float] = field(default_factory=list)
     polish_iterations: int = 0
     stopped_early: bool = False
+    restarts: int = 0  # searches run again because the first settled at the exponent's upper limit
+    restart_kept: bool = False  # the search run again fitted the training part better and was kept
 
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
@@ -584,10 +587,6 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             trace.spread.append(float(np.std(e) / max(abs(float(np.mean(e))), 1e-300)))
         return False
 
-    de = differential_evolution(
-        lambda X: search.many(np.atleast_2d(X.T)), bounds, popsize=popsize, maxiter=maxiter, tol=SEARCH_SPREAD,
-        atol=0.0, mutation=(0.5, 1.0), recombination=0.9, seed=seed, polish=False, init="latinhypercube",
-        updating="deferred", vectorized=True, x0=x0, callback=_cb)
     lo = np.array([b[0] for b in bounds])
     hi = np.array([b[1] for b in bounds])
 
@@ -596,36 +595,59 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if progress and trace.polish_iterations % 20 == 0:
             progress("polish", min(trace.polish_iterations, polish_evals), polish_evals)
 
-    # the polish starts from whichever of the search's five best is best on the polish's data
-    top = np.asarray(de.population)[np.argsort(de.population_energies)[:5]]
-    costs = obj.many(top)
-    x_start = top[int(np.argmin(costs))]
-    delay = 0.0
-    if max_delay_s > 0:
-        no_delay_start = x_start
-        delay, x_start, scan_calls = _delay_search(t, u_hat, w_hat, n_train_end, norm.c, x_start, lo, hi,
-                                                   max_delay_s, progress)
-        search.calls += scan_calls
-    if delay > 0:
-        obj_d = _Objective(FitPath.build(delayed(t, u_hat, delay), w_hat, n_train_end, max_fit_points,
-                                         POLISH_REVERSALS), norm.c)
-        best, cost = _polish(obj_d, x_start, lo, hi, polish_evals, _nm_cb)
-        # the scan judged on a smaller path with short polishes: the delay is kept only if the fully polished
-        # model with it still beats the one without it (the same amount of polish) on the polish's path
-        no_delay, cost0 = _polish(obj, no_delay_start, lo, hi, polish_evals, _nm_cb)
-        search.calls += obj_d.calls
-        if cost > (1.0 - DELAY_GAIN) * cost0:
-            log.info("transport delay %.1f ms not kept: polished, it fits no better than none", 1e3 * delay)
-            delay, best = 0.0, no_delay
-    else:
-        best, _ = _polish(obj, x_start, lo, hi, polish_evals, _nm_cb)
-    params = norm.to_physical(theta_to_normalised(best, norm.c))
+    def search_and_polish(de_seed: int) -> tuple[np.ndarray, float]:
+        """Global search, delay scan and polish from one random seed: (theta, transport delay s)."""
+        de = differential_evolution(
+            lambda X: search.many(np.atleast_2d(X.T)), bounds, popsize=popsize, maxiter=maxiter, tol=SEARCH_SPREAD,
+            atol=0.0, mutation=(0.5, 1.0), recombination=0.9, seed=de_seed, polish=False, init="latinhypercube",
+            updating="deferred", vectorized=True, x0=x0, callback=_cb)
+        # the polish starts from whichever of the search's five best is best on the polish's data
+        top = np.asarray(de.population)[np.argsort(de.population_energies)[:5]]
+        costs = obj.many(top)
+        x_start = top[int(np.argmin(costs))]
+        delay = 0.0
+        if max_delay_s > 0:
+            no_delay_start = x_start
+            delay, x_start, scan_calls = _delay_search(t, u_hat, w_hat, n_train_end, norm.c, x_start, lo, hi,
+                                                       max_delay_s, progress)
+            search.calls += scan_calls
+        if delay > 0:
+            obj_d = _Objective(FitPath.build(delayed(t, u_hat, delay), w_hat, n_train_end, max_fit_points,
+                                             POLISH_REVERSALS), norm.c)
+            best, cost = _polish(obj_d, x_start, lo, hi, polish_evals, _nm_cb)
+            # the scan judged on a smaller path with short polishes: the delay is kept only if the fully polished
+            # model with it still beats the one without it (the same amount of polish) on the polish's path
+            no_delay, cost0 = _polish(obj, no_delay_start, lo, hi, polish_evals, _nm_cb)
+            search.calls += obj_d.calls
+            if cost > (1.0 - DELAY_GAIN) * cost0:
+                log.info("transport delay %.1f ms not kept: polished, it fits no better than none", 1e3 * delay)
+                delay, best = 0.0, no_delay
+        else:
+            best, _ = _polish(obj, x_start, lo, hi, polish_evals, _nm_cb)
+        return best, delay
 
-    x = delayed(t, u, delay) if delay > 0 else u
-    z0 = estimate_z0(params, x[:n_train_end], w[:n_train_end])
-    w_pred, _, _ = forward(params, x, z0=z0)
+    def evaluate(theta: np.ndarray, delay: float):
+        """(physical parameters, z0, prediction of the whole log, training RMS) of one search result."""
+        params = norm.to_physical(theta_to_normalised(theta, norm.c))
+        x = delayed(t, u, delay) if delay > 0 else u
+        z0 = estimate_z0(params, x[:n_train_end], w[:n_train_end])
+        w_pred, _, _ = forward(params, x, z0=z0)
+        return params, z0, w_pred, float(np.sqrt(np.mean((w_pred - w)[train_mask] ** 2)))
+
+    best, delay = search_and_polish(seed)
+    params, z0, w_pred, train_rms = evaluate(best, delay)
+    if at_exponent_edge(best, lo, hi, EDGE_FRAC):
+        # the exponent n trades against the saturation levels along a long, flat ridge, and a search can
+        # walk up it to the box's upper limit; a second search from another seed, the better on training kept
+        log.info("the search settled at the exponent's upper limit (n = %.3g): searching again", params.n)
+        trace.restarts += 1
+        best2, delay2 = search_and_polish(seed + 1)
+        again = evaluate(best2, delay2)
+        if again[3] < train_rms:
+            trace.restart_kept = True
+            best, delay = best2, delay2
+            params, z0, w_pred, train_rms = again
     err = w_pred - w
-    train_rms = float(np.sqrt(np.mean(err[train_mask] ** 2)))
     held_rms = float(np.sqrt(np.mean(err[held_mask] ** 2))) if held_mask.any() else float("nan")
     noise = noise_floor(w)
     return IdentResult(
@@ -634,6 +656,12 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=search.calls + obj.calls,
         split_time=split_time, w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask, z0=z0, trace=trace,
         support=support_check(t, u, w, w_pred, train_mask, held_mask, noise), delay_s=delay)
+
+
+def at_exponent_edge(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray, frac: float) -> bool:
+    """True when the exponent n (theta[0]) lies within ``frac`` of its range from the box's upper end: a
+    limit of the search, not of the model (n = 1, the lower end, is the classical Bouc-Wen and Dahl form)."""
+    return bool(theta[0] >= hi[0] - frac * (hi[0] - lo[0]))
 
 
 def _polish(obj: _Objective, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, evals: int,

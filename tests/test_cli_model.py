@@ -246,3 +246,16 @@ def test_max_delay_is_checked_against_the_scans_grid(tmp_path, capsys):
     assert run("identify", tmp_path / "b.csv", "-o", tmp_path / "m.json", "--max-delay", 0.5) != 0
     assert "--max-delay must lie between 0 and 0.16 s" in capsys.readouterr().err
     assert not (tmp_path / "m.json").exists()
+
+
+def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(workdir, tmp_path, capsys, monkeypatch):
+    import warpbridge.model.identify as ident
+
+    capsys.readouterr()
+    assert run("identify", workdir / "bench.csv", "-o", tmp_path / "once.json", "--maxiter", 10) == 0
+    assert "searched again" not in capsys.readouterr().out
+    monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every search counts as ending at the limit
+    assert run("identify", workdir / "bench.csv", "-o", tmp_path / "twice.json", "--maxiter", 10) == 0
+    out = capsys.readouterr().out
+    assert "the first search ended at the upper limit of the exponent n: searched again" in out
+    assert ("was kept" in out) != ("the first still fitted" in out)

@@ -525,3 +525,15 @@ def test_a_runner_up_taken_for_its_pair_keeps_its_confidence():
     assert any("runner-up" in n for n in d.report["notes"]), d.report["notes"]
     rows = {r["effect"]: r for r in d.report["candidates"]}
     assert all(rows[n]["confidence"] > 0.5 for n in d.verdict), [rows[n]["confidence"] for n in d.verdict]
+
+
+def test_a_band_effect_named_with_a_tension_change_is_flagged_as_its_possible_consequence():
+    from warpbridge.model.diagnose import tension_band_notes
+
+    (note,) = tension_band_notes(["friction", "pretension"])
+    assert note.startswith("friction named with pretension") and "capstan" in note and "tension at rest" in note
+    (note,) = tension_band_notes(["aero_load", "backlash"])
+    assert note.startswith("backlash named with aero_load") and "airspeed" in note
+    assert len(tension_band_notes(["aero_load", "friction", "pretension"])) == 2
+    for alone in (["friction"], ["pretension"], ["aero_load", "drift"], ["backlash", "delay"], []):
+        assert tension_band_notes(alone) == []

@@ -72,6 +72,39 @@ def test_same_seed_gives_the_same_model():
     assert a.params == b.params
 
 
+def test_a_search_at_the_exponents_upper_limit_is_run_again_and_the_better_kept(monkeypatch):
+    import warpbridge.model.identify as ident
+
+    u = filtered_random(T[:3000], 1.0, 2.5, offset=4.5, seed=4)
+    _, w = noisy_log(u, 3)
+    wrong = BoucWenParams(a1=-0.005, a2=0.5, a3=1.5, az=0.3, A=8.0, n=2.0, b=(5, -2, 1, -1, 3, -5))
+    kw = dict(maxiter=8, polish_evals=60, prior=wrong)  # a short search from a wrong prior: seeds differ
+    monkeypatch.setattr(ident, "EDGE_FRAC", -1.0)  # no result counts as at the limit: one search per seed
+    first, second = (identify(T[:3000], u, w, seed=s, **kw) for s in (7, 8))
+    assert first.trace.restarts == second.trace.restarts == 0
+    assert first.params != second.params
+    monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every result counts as at the limit
+    both = identify(T[:3000], u, w, seed=7, **kw)
+    assert both.trace.restarts == 1
+    assert both.trace.restart_kept == (second.train_rms < first.train_rms)
+    kept = min((first, second), key=lambda r: r.train_rms)
+    assert both.params == kept.params and both.train_rms == kept.train_rms
+    assert both.heldout_rms == kept.heldout_rms
+
+
+def test_only_the_exponents_upper_limit_counts_as_its_edge():
+    from warpbridge.model.identify import BOUNDS_ONE_SIDED, EDGE_FRAC, at_exponent_edge
+
+    lo = np.array([b[0] for b in BOUNDS_ONE_SIDED])
+    hi = np.array([b[1] for b in BOUNDS_ONE_SIDED])
+    theta = 0.5 * (lo + hi)
+    assert not at_exponent_edge(theta, lo, hi, EDGE_FRAC)
+    theta[0] = hi[0]
+    assert at_exponent_edge(theta, lo, hi, EDGE_FRAC)
+    theta[0] = lo[0]  # n = 1, the classical Bouc-Wen form: a value of the model, not a limit of the search
+    assert not at_exponent_edge(theta, lo, hi, EDGE_FRAC)
+
+
 def test_noise_floor_estimate():
     rng = np.random.default_rng(0)
     t = np.arange(0, 20, 1 / 500)

@@ -153,6 +153,10 @@ def main(args: argparse.Namespace) -> int:
               "lag; effects.delay_s)")
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
+    if res.trace.restarts:
+        print("  the first search ended at the upper limit of the exponent n: searched again from another seed, "
+              + ("the second fitted the training part better and was kept" if res.trace.restart_kept
+                 else "the first still fitted the training part better"))
     if res.support is not None and not res.support.supported:
         print(f"warning: {res.support.reason}")
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
