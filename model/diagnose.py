@@ -420,6 +420,18 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         dropped.append({"effect": sel[0], "reason": "entered together with an effect the backward pass dropped, "
                                                     "and alone it adds no significant, material share of the gap"})
         sel, chosen_round, cur = (), {}, ex.nominal
+    for b in [b for b in LOAD_COUPLED if b in sel and "aero_load" in sel]:
+        f0 = ex.without(sel, b, cur)
+        r = gain_by_airspeed(ex.w, f0.w_pred, cur.w_pred, ex.prob.q, ex.prob.split.score)
+        if r is not None and grows_with_load(r):
+            dropped.append({"effect": b, "reason": f"its held-out gain grows faster than the dynamic pressure "
+                                                   f"({_ratio_text(r)}): what the load's tension changes in a "
+                                                   f"tendon sheath (its friction band, capstan law, and the "
+                                                   f"tendon's compliance), so it is the aero load's",
+                            "gain_by_airspeed": r})
+            sel = tuple(x for x in sel if x != b)
+            chosen_round.pop(b, None)
+            cur = f0
     together = {k: v for k, v in together.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
@@ -522,7 +534,9 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     notes = list(path.notes)
     for h in hits:
         notes.append(h["meaning"])
-    notes += tension_band_notes(selected)
+    by_airspeed = band_gain_by_airspeed(ex, selected, cur)
+    notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
+    notes += [airspeed_note(b) for b in by_airspeed]
     residual_is_noise = white.passed and indep.passed
     if not selected and not residual_is_noise:
         notes.append("the residual is structured but no effect explains a significant, material share of it: "
@@ -553,6 +567,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "bound_hits": hits,
         "ambiguities": ambiguities,
         "dropped": path.dropped,
+        "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
         "alternatives": alternatives,
         "split": {"scheme": "10 alternating blocks, blocks 2, 5, 7, 10 scored", "warmup_samples": sp.start,
@@ -576,20 +591,87 @@ TENSION_CHANGES = {
                                         "airspeed is the load's"),
 }
 BAND_EFFECTS = ("friction", "backlash")  # what a wider or narrower friction band is named as
+# what a load on the wing changes in a tendon sheath besides the warp it bends back: the friction band and the
+# tendon's compliance (its take-up of slack stiffens with tension), all through the tension the load adds
+LOAD_COUPLED = (*BAND_EFFECTS, "pretension")
 
 
-def tension_band_notes(selected: list[str]) -> list[str]:
+def tension_band_notes(selected: list[str], airspeed_checked: bool = False) -> list[str]:
     """Notes for a band effect named together with a change of the tendon's tension: in a tendon sheath the
-    second may be the first's consequence, not a change of its own."""
+    second may be the first's consequence, not a change of its own. With ``airspeed_checked`` the aero load's
+    is left to ``airspeed_note`` (the log itself was checked)."""
     band = [b for b in BAND_EFFECTS if b in selected]
     notes = []
     for cause, (what, check) in TENSION_CHANGES.items():
+        if cause == "aero_load" and airspeed_checked:
+            continue
         if cause in selected and band:
             notes.append(f"{' and '.join(band)} named with {cause}: in a tendon sheath the friction grows with "
                          f"the tension (capstan law), so {what} widens or narrows the hysteresis band too, and "
                          f"the {' / '.join(band)} change may be the {cause}'s consequence rather than a change "
                          f"of its own; to tell them apart, {check}")
     return notes
+
+
+def gain_by_airspeed(w: np.ndarray, w_without: np.ndarray, w_with: np.ndarray, q: np.ndarray,
+                     mask: np.ndarray) -> dict | None:
+    """What an effect gains (drop of the squared error, deg^2 per sample) on the slowest and the fastest
+    third of the ``mask`` samples by dynamic pressure ``q`` (kPa), or None when the two thirds hardly differ
+    in airspeed (the fast third's mean q under 1.5x the slow third's)."""
+    qm = q[mask]
+    if qm.size < 30:
+        return None
+    g = ((w - w_without) ** 2 - (w - w_with) ** 2)[mask]
+    q1, q2 = np.quantile(qm, [1 / 3, 2 / 3])
+    slow, fast = qm <= q1, qm >= q2
+    q_slow, q_fast = float(np.mean(qm[slow])), float(np.mean(qm[fast]))
+    if not q_fast > 1.5 * q_slow:
+        return None
+    g_slow, g_fast = float(np.mean(g[slow])), float(np.mean(g[fast]))
+    return {"q_slow_kpa": q_slow, "q_fast_kpa": q_fast, "gain_slow_ms": g_slow, "gain_fast_ms": g_fast,
+            "fast_over_slow": g_fast / g_slow if g_slow > 0 else None}  # None: no gain on the slow third
+
+
+def grows_with_load(r: dict) -> bool:
+    """An effect's gain grows faster than the dynamic pressure between the slow and the fast third.
+
+    A change of the sheath's own friction or rig gains about alike at any airspeed (ratio ~1); a band or a
+    compliance that the load changes (in proportion to it: capstan law) gains as the square of the change,
+    ~(q_fast / q_slow)^2. The line is drawn halfway between the two on a log scale: q_fast / q_slow."""
+    if r["fast_over_slow"] is None:
+        return r["gain_fast_ms"] > 0.0
+    return r["fast_over_slow"] > r["q_fast_kpa"] / r["q_slow_kpa"]
+
+
+def _ratio_text(r: dict) -> str:
+    q = (f"{r['q_fast_kpa'] / r['q_slow_kpa']:.1f}x the dynamic pressure ({r['q_slow_kpa']:.2f} -> "
+         f"{r['q_fast_kpa']:.2f} kPa)")
+    if r["fast_over_slow"] is None:
+        return f"none on the slowest third of the log, {r['gain_fast_ms']:.2g} deg^2 on the fastest at {q}"
+    return f"{r['fast_over_slow']:.1f}x as much on the fastest third of the log as on the slowest, at {q}"
+
+
+def band_gain_by_airspeed(ex: Explorer, selected: list[str], cur: Fit) -> list[dict]:
+    """For a tension-dependent effect named with ``aero_load``: its held-out gain on the slowest and the fastest
+    third of the log, from the fit without it. A change of the sheath's own friction or rig gains alike at any
+    airspeed; what the load's tension changes gains mostly where the load is high."""
+    if "aero_load" not in selected or ex.prob.q is None:
+        return []
+    out = []
+    for b in LOAD_COUPLED:
+        if b in selected:
+            f0 = ex.without(tuple(selected), b, cur)
+            r = gain_by_airspeed(ex.w, f0.w_pred, cur.w_pred, ex.prob.q, ex.prob.split.score)
+            if r is not None:
+                out.append({"effect": b} | r)
+    return out
+
+
+def airspeed_note(r: dict) -> str:
+    """The report's reading of ``gain_by_airspeed`` for an effect kept beside an aero load."""
+    return (f"{r['effect']} beside aero_load: on the held-out blocks it gains {_ratio_text(r)}; what the load's "
+            f"tension changes (the band, capstan law, or the compliance) would gain faster than the pressure "
+            f"grows, so this is a change of its own")
 
 
 BOUND_CONFIDENCE = 0.5  # confidence factor of an effect whose fitted parameter sits at a bound of its search

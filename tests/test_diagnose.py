@@ -537,3 +537,47 @@ def test_a_band_effect_named_with_a_tension_change_is_flagged_as_its_possible_co
     assert len(tension_band_notes(["aero_load", "friction", "pretension"])) == 2
     for alone in (["friction"], ["pretension"], ["aero_load", "drift"], ["backlash", "delay"], []):
         assert tension_band_notes(alone) == []
+
+
+def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the_load_is_the_loads():
+    from warpbridge.model.diagnose import gain_by_airspeed, grows_with_load
+
+    rng = np.random.default_rng(0)
+    n = 6000
+    q = np.linspace(0.02, 0.3, n)  # kPa: the log speeds up
+    w = rng.normal(0.0, NOISE, n)
+    wiggle = 0.1 * np.sin(np.arange(n) / 20.0)
+    every = np.ones(n, bool)
+    # what the load changes, in proportion to it: the error without the effect grows with q
+    coupled = gain_by_airspeed(w, w + wiggle * q / 0.3, w, q, every)
+    assert coupled["q_fast_kpa"] > 3 * coupled["q_slow_kpa"]
+    assert coupled["fast_over_slow"] > (coupled["q_fast_kpa"] / coupled["q_slow_kpa"]) ** 1.5
+    assert grows_with_load(coupled)
+    # a change of its own: the same error at any airspeed
+    own = gain_by_airspeed(w, w + wiggle, w, q, every)
+    assert own["fast_over_slow"] == pytest.approx(1.0, abs=0.15)
+    assert not grows_with_load(own)
+    # gains only where the load is high
+    fast_only = gain_by_airspeed(w, w + wiggle * (q > 0.25), w, q, every)
+    assert fast_only["fast_over_slow"] is None and grows_with_load(fast_only)
+    # a log flown at one speed cannot tell, and only the masked samples count
+    assert gain_by_airspeed(w, w + wiggle, w, np.full(n, 0.1), every) is None
+    assert gain_by_airspeed(w, w + wiggle, w, q, np.zeros(n, bool)) is None
+
+
+def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loads(monkeypatch):
+    import warpbridge.model.diagnose as diag
+
+    pair = TRUE["aero_load"][0].merged(TRUE["friction"][0])
+    t, u, w, v = make_log(pair, seed=31)
+    kept = diagnose(t, u, w, v, nominal_model())
+    assert kept.verdict == ["aero_load", "friction"] or kept.verdict == ["friction", "aero_load"]
+    (split,) = kept.report["band_gain_by_airspeed"]  # the friction's own: about alike at any airspeed
+    assert split["effect"] == "friction" and not diag.grows_with_load(split)
+    assert any(n.startswith("friction beside aero_load") for n in kept.report["notes"])
+    # the same log, read as if the friction's gain grew with the load: it goes to the load
+    monkeypatch.setattr(diag, "grows_with_load", lambda r: True)
+    moved = diagnose(t, u, w, v, nominal_model())
+    assert moved.verdict == ["aero_load"]
+    (drop,) = [x for x in moved.report["dropped"] if x["effect"] == "friction"]
+    assert "aero load's" in drop["reason"] and drop["gain_by_airspeed"]["q_fast_kpa"] > 0
