@@ -297,7 +297,8 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
                   for m, m0, m00 in zip(mse_of[ek], (mse_nom, bare_nom), (mse_nom0, bare_nom0), strict=True)]
         by_decision[blind_lofo.key(alt["decision"])] = {"verdict": sorted(alt["verdict"]), "gap_closed": closed[0],
                                                         "gap_closed_bare": closed[1],
-                                                        "check_rms_after": math.sqrt(mse_of[ek][0])}
+                                                        "check_rms_after": math.sqrt(mse_of[ek][0]),
+                                                        "to_aero_load": alt.get("to_aero_load", [])}
     fitq = nominal.fit
     misfit = math.sqrt(max(fitq.heldout_rms_deg ** 2 - fitq.noise_deg ** 2, 0.0))
     return {"family": plant.family, "plant": plant.name, "seed": seed, "plant_index": index, "case": k,
@@ -308,7 +309,7 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
             "by_decision": by_decision, "seconds_sensitivity": seconds_sens, "seconds": seconds,
             "check_rms_nominal": math.sqrt(mse_nom), "check_rms_nominal_without_effects": math.sqrt(mse_nom0),
             "check_rms_bare": math.sqrt(bare_nom), "check_rms_bare_without_effects": math.sqrt(bare_nom0),
-            "bound_hits": rep.get("bound_hits", [])}
+            "bound_hits": rep.get("bound_hits", []), "kept_beside_aero_load": rep.get("band_gain_by_airspeed", [])}
 
 
 def case_job(family: str, seed: int, index: int, k: int, names, case_seed: int, args) -> dict:
@@ -454,6 +455,9 @@ def main() -> None:
     print("\nclose calls (each fold's decision and the best-scoring other one, on the other families, that gives its "
           "family a different result)")
     print(blind_lofo.close_calls(results, folds))
+    print("\neffects named beside an aero load, their held-out gain split by airspeed (fastest third of the log / "
+          "slowest; such an effect goes to the load when the ratio exceeds the dynamic pressure's)")
+    print(blind_lofo.aero_split_table(results, folds))
     print("\nwith the shipped default decision " + default + ":")
     rt = blind_lofo.rates(results, default)
     print(f"  singles {rt['single_ok']}/{rt['singles']}, pairs {rt['pair_ok']}/{rt['pairs']}, false alarms "

@@ -321,3 +321,26 @@ def close_calls(results: list[dict], folds: dict) -> str:
             lines.append(f"{fam if label == 'chosen' else '':<20} {label:<10} {describe_decision(d):<44} "
                          f"{'/'.join(map(str, counts(train, d))):>16} {'/'.join(map(str, counts(rs, d))):>17}")
     return "\n".join(lines)
+
+
+def aero_split_table(results: list[dict], folds: dict) -> str:
+    """Per case: each effect its fold's decision attributed to the aero load (its gain grows faster than the
+    dynamic pressure), and each one the shipped default's report kept beside the load, with the ratios."""
+    dk_of = {fam: dk for fam, (dk, _) in folds.items()}
+    lines = [f"{'case':<30} {'truth':<24} {'verdict':<28} {'effect':<11} {'gain fast/slow':>14} "
+             f"{'q fast/slow':>11}   {'':<10}"]
+
+    def row(r: dict, verdict: list[str], x: dict, what: str) -> str:
+        ratio = x["fast_over_slow"]
+        rt = f"{ratio:.2f}" if ratio is not None else "(slow: 0)"
+        return (f"{r['plant'] + '-c' + str(r['case']):<30} {'+'.join(r['truth']) or '[]':<24} "
+                f"{'+'.join(verdict) or '[]':<28} {x['effect']:<11} {rt:>14} "
+                f"{x['q_fast_kpa'] / x['q_slow_kpa']:>11.2f}   {what}")
+
+    for r in sorted(results, key=lambda r: (r["family"], r["seed"], r["plant_index"], r["case"])):
+        fold = r["by_decision"][dk_of[r["family"]]]
+        for x in fold.get("to_aero_load", []):
+            lines.append(row(r, fold["verdict"], x, "to the load (fold's decision)"))
+        for x in r.get("kept_beside_aero_load", []):
+            lines.append(row(r, r["verdict"], x, "kept (shipped default)"))
+    return "\n".join(lines) if len(lines) > 1 else "  none"

@@ -577,7 +577,9 @@ def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loa
     assert any(n.startswith("friction beside aero_load") for n in kept.report["notes"])
     # the same log, read as if the friction's gain grew with the load: it goes to the load
     monkeypatch.setattr(diag, "grows_with_load", lambda r: True)
-    moved = diagnose(t, u, w, v, nominal_model())
+    moved = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(alternatives=(DiagnoseOptions().decision,)))
     assert moved.verdict == ["aero_load"]
     (drop,) = [x for x in moved.report["dropped"] if x["effect"] == "friction"]
     assert "aero load's" in drop["reason"] and drop["gain_by_airspeed"]["q_fast_kpa"] > 0
+    (alt,) = moved.report["alternatives"]  # what each decision gave to the load, for the benchmark's table
+    assert alt["verdict"] == ["aero_load"] and [x["effect"] for x in alt["to_aero_load"]] == ["friction"]
