@@ -576,12 +576,15 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
     trace = SearchTrace()
 
+    first_search = [0]  # generations the first search ran, once a second one starts
+
     def _cb(intermediate_result=None):
         trace.generations += 1
         if intermediate_result is not None:
             trace.best.append(float(intermediate_result.fun))
-        if progress:
-            progress("search", trace.generations, maxiter)
+        if progress:  # the generations of this search (a second one counts from 1 again)
+            progress("search" if not trace.restarts else "search again", trace.generations - first_search[0],
+                     maxiter)
         if intermediate_result is not None:
             e = np.asarray(intermediate_result.population_energies)
             trace.spread.append(float(np.std(e) / max(abs(float(np.mean(e))), 1e-300)))
@@ -641,6 +644,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         # walk up it to the box's upper limit; a second search from another seed, the better on training kept
         log.info("the search settled at the exponent's upper limit (n = %.3g): searching again", params.n)
         trace.restarts += 1
+        first_search[0] = trace.generations
         best2, delay2 = search_and_polish(seed + 1)
         again = evaluate(best2, delay2)
         if again[3] < train_rms:

@@ -84,8 +84,10 @@ def test_a_search_at_the_exponents_upper_limit_is_run_again_and_the_better_kept(
     assert first.trace.restarts == second.trace.restarts == 0
     assert first.params != second.params
     monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every result counts as at the limit
-    both = identify(T[:3000], u, w, seed=7, **kw)
+    seen = []
+    both = identify(T[:3000], u, w, seed=7, progress=lambda stage, i, n: seen.append((stage, i)), **kw)
     assert both.trace.restarts == 1
+    assert ("search again", 1) in seen and max(i for stage, i in seen if stage == "search again") <= kw["maxiter"]
     assert both.trace.restart_kept == (second.train_rms < first.train_rms)
     kept = min((first, second), key=lambda r: r.train_rms)
     assert both.params == kept.params and both.train_rms == kept.train_rms
