@@ -332,7 +332,7 @@ def aero_split_table(results: list[dict], folds: dict) -> str:
 
     def row(r: dict, verdict: list[str], x: dict, what: str) -> str:
         ratio = x["fast_over_slow"]
-        rt = f"{ratio:.2f}" if ratio is not None else "(slow: 0)"
+        rt = f"{ratio:.2f}" if ratio is not None else "(slow <= 0)"
         return (f"{r['plant'] + '-c' + str(r['case']):<30} {'+'.join(r['truth']) or '[]':<24} "
                 f"{'+'.join(verdict) or '[]':<28} {x['effect']:<11} {rt:>14} "
                 f"{x['q_fast_kpa'] / x['q_slow_kpa']:>11.2f}   {what}")

@@ -328,6 +328,8 @@ class Path:
     together: dict[str, PairedGain] = field(default_factory=dict)  # the first of a pair that entered together:
     # its test given the second
     from_runner_up: bool = False  # round 2 went on from the first round's runner-up
+    to_load: dict[str, dict] = field(default_factory=dict)  # effects given to the aero load: their airspeed split
+    kept_by_airspeed: dict[str, dict] = field(default_factory=dict)  # named beside the load: their split
 
 
 def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
@@ -415,28 +417,39 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                 cur = f
                 changed = True
                 break
-    if len(sel) == 1 and sel[0] in entered_together and not ex.admits(d, ex.nominal, cur):
-        # what is left of a pair that entered together was never admitted alone
-        dropped.append({"effect": sel[0], "reason": "entered together with an effect the backward pass dropped, "
-                                                    "and alone it adds no significant, material share of the gap"})
-        sel, chosen_round, cur = (), {}, ex.nominal
+    to_load: dict[str, dict] = {}
+    kept_by_airspeed: dict[str, dict] = {}
     for b in [b for b in LOAD_COUPLED if b in sel and "aero_load" in sel]:
         f0 = ex.without(sel, b, cur)
         r = gain_by_airspeed(ex.w, f0.w_pred, cur.w_pred, ex.prob.q, ex.prob.split.score)
-        if r is not None and grows_with_load(r):
-            dropped.append({"effect": b, "reason": f"its held-out gain grows faster than the dynamic pressure "
-                                                   f"({_ratio_text(r)}): what the load's tension changes in a "
-                                                   f"tendon sheath (its friction band, capstan law, and the "
-                                                   f"tendon's compliance), so it is the aero load's",
-                            "gain_by_airspeed": r})
-            sel = tuple(x for x in sel if x != b)
-            chosen_round.pop(b, None)
-            cur = f0
+        if r is None:
+            continue
+        if not grows_with_load(r):
+            kept_by_airspeed[b] = r
+            continue
+        dropped.append({"effect": b, "reason": f"its held-out gain grows faster than the dynamic pressure "
+                                               f"({_ratio_text(r)}): what the load's tension changes in a "
+                                               f"tendon sheath (its friction band, capstan law, and the "
+                                               f"tendon's compliance), so it is the aero load's",
+                        "gain_by_airspeed": r})
+        to_load[b] = r
+        sel = tuple(x for x in sel if x != b)
+        chosen_round.pop(b, None)
+        cur = f0
+    if len(sel) == 1 and sel[0] in entered_together and not ex.admits(d, ex.nominal, cur):
+        # what is left of a pair that entered together was never admitted alone
+        dropped.append({"effect": sel[0], "reason": "entered together with an effect dropped since, and alone "
+                                                    "it adds no significant, material share of the gap"})
+        sel, chosen_round, cur = (), {}, ex.nominal
     together = {k: v for k, v in together.items() if k in sel}
+    kept_by_airspeed = {k: v for k, v in kept_by_airspeed.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
     from_runner_up = from_runner_up and bool(sel) and chosen_round.get(sel[0]) == 1
-    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up)
+    # an effect dropped leaves a gap in the round numbers: the rounds the report shows follow ``sel``
+    chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
+    return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up, to_load,
+                kept_by_airspeed)
 
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
@@ -536,7 +549,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     notes = list(path.notes)
     for h in hits:
         notes.append(h["meaning"])
-    by_airspeed = band_gain_by_airspeed(ex, selected, cur)
+    by_airspeed = [{"effect": b} | r for b, r in path.kept_by_airspeed.items()]
     notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
     notes += [airspeed_note(b) for b in by_airspeed]
     residual_is_noise = white.passed and indep.passed
@@ -618,55 +631,43 @@ def tension_band_notes(selected: list[str], airspeed_checked: bool = False) -> l
 def gain_by_airspeed(w: np.ndarray, w_without: np.ndarray, w_with: np.ndarray, q: np.ndarray,
                      mask: np.ndarray) -> dict | None:
     """What an effect gains (drop of the squared error, deg^2 per sample) on the slowest and the fastest
-    third of the ``mask`` samples by dynamic pressure ``q`` (kPa), or None when the two thirds hardly differ
-    in airspeed (the fast third's mean q under 1.5x the slow third's)."""
-    qm = q[mask]
+    third of the ``mask`` samples flown (q > 0) by dynamic pressure ``q`` (kPa). None when fewer than 30
+    such samples, or when the two thirds hardly differ in airspeed (the fast third's mean q under 1.5x the
+    slow third's)."""
+    flying = mask & (q > 0)
+    qm = q[flying]
     if qm.size < 30:
         return None
-    g = ((w - w_without) ** 2 - (w - w_with) ** 2)[mask]
-    q1, q2 = np.quantile(qm, [1 / 3, 2 / 3])
-    slow, fast = qm <= q1, qm >= q2
+    g = ((w - w_without) ** 2 - (w - w_with) ** 2)[flying]
+    order = np.argsort(qm, kind="stable")
+    third = qm.size // 3
+    slow, fast = order[:third], order[-third:]
     q_slow, q_fast = float(np.mean(qm[slow])), float(np.mean(qm[fast]))
     if not q_fast > 1.5 * q_slow:
         return None
     g_slow, g_fast = float(np.mean(g[slow])), float(np.mean(g[fast]))
     return {"q_slow_kpa": q_slow, "q_fast_kpa": q_fast, "gain_slow_ms": g_slow, "gain_fast_ms": g_fast,
-            "fast_over_slow": g_fast / g_slow if g_slow > 0 else None}  # None: no gain on the slow third
+            "fast_over_slow": g_fast / g_slow if g_slow > 0 else None}  # None: no gain (or a loss) when slow
 
 
 def grows_with_load(r: dict) -> bool:
     """An effect's gain grows faster than the dynamic pressure between the slow and the fast third.
 
-    A change of the sheath's own friction or rig gains about alike at any airspeed (ratio ~1); a band or a
-    compliance that the load changes (in proportion to it: capstan law) gains as the square of the change,
-    ~(q_fast / q_slow)^2. The line is drawn halfway between the two on a log scale: q_fast / q_slow."""
-    if r["fast_over_slow"] is None:
-        return r["gain_fast_ms"] > 0.0
-    return r["fast_over_slow"] > r["q_fast_kpa"] / r["q_slow_kpa"]
+    A heuristic from two readings: a change of the sheath's own friction or rig gains about alike at any
+    airspeed (ratio ~1); a band or a compliance the load changes (in proportion to it: capstan law) gains
+    roughly as the square of the change, ~(q_fast / q_slow)^2 (roughly: the fitted constant takes up part of
+    it, and the slow third's gain can even turn negative). The line is drawn halfway between the two on a
+    log scale, g_fast / g_slow > q_fast / q_slow (compared multiplied out, so no division by a zero gain)."""
+    return r["gain_fast_ms"] * r["q_slow_kpa"] > max(r["gain_slow_ms"], 0.0) * r["q_fast_kpa"]
 
 
 def _ratio_text(r: dict) -> str:
     q = (f"{r['q_fast_kpa'] / r['q_slow_kpa']:.1f}x the dynamic pressure ({r['q_slow_kpa']:.2f} -> "
          f"{r['q_fast_kpa']:.2f} kPa)")
     if r["fast_over_slow"] is None:
-        return f"none on the slowest third of the log, {r['gain_fast_ms']:.2g} deg^2 on the fastest at {q}"
+        return (f"nothing (or a loss) on the slowest third of the log, {r['gain_fast_ms']:.2g} deg^2 on the "
+                f"fastest, at {q}")
     return f"{r['fast_over_slow']:.1f}x as much on the fastest third of the log as on the slowest, at {q}"
-
-
-def band_gain_by_airspeed(ex: Explorer, selected: list[str], cur: Fit) -> list[dict]:
-    """For a tension-dependent effect named with ``aero_load``: its held-out gain on the slowest and the fastest
-    third of the log, from the fit without it. A change of the sheath's own friction or rig gains alike at any
-    airspeed; what the load's tension changes gains mostly where the load is high."""
-    if "aero_load" not in selected or ex.prob.q is None:
-        return []
-    out = []
-    for b in LOAD_COUPLED:
-        if b in selected:
-            f0 = ex.without(tuple(selected), b, cur)
-            r = gain_by_airspeed(ex.w, f0.w_pred, cur.w_pred, ex.prob.q, ex.prob.split.score)
-            if r is not None:
-                out.append({"effect": b} | r)
-    return out
 
 
 def airspeed_note(r: dict) -> str:
@@ -729,7 +730,8 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         best_conf = support[best.name]
         # a runner-up taken for what it explains with a second effect is not made less likely by a candidate
         # that explains more alone
-        rivals = [] if k == 0 and path.from_runner_up else [j for j in acc if j is not best]
+        rivals = [] if k == 0 and path.from_runner_up else [j for j in acc if j is not best
+                                                            and j.name not in path.to_load]
         for j in rivals:
             # is the better-scoring of the two better than the other? (best may be the simpler of equals)
             worse, better = (j, best) if j.fit.score_mse >= best.fit.score_mse else (best, j)

@@ -243,6 +243,8 @@ class IdentResult:
              "z0_start_of_log": self.z0, "delay_s": self.delay_s}
         if self.support is not None:
             d |= {"supported": self.support.supported, "support": self.support.reason}
+        if self.trace is not None and self.trace.restarts:  # the kept model came from the seed after --seed
+            d |= {"searched_again": True, "second_search_kept": self.trace.restart_kept}
         return d
 
 
@@ -522,7 +524,8 @@ def _sse_rows_serial(P, u, w, weight, offsets, W0, Z0, budgets, tol, out):
 
 @dataclass
 class SearchTrace:
-    """How the search went: generations run, best cost per generation, polish iterations."""
+    """How the search went: generations run, best cost per generation, polish iterations (a second search,
+    when there is one, appends to the same lists and counts)."""
 
     generations: int = 0
     best: list[float] = field(default_factory=list)
@@ -576,7 +579,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
     trace = SearchTrace()
 
-    first_search = [0]  # generations the first search ran, once a second one starts
+    first_search = [0, 0]  # generations and polish iterations the first search ran, once a second one starts
 
     def _cb(intermediate_result=None):
         trace.generations += 1
@@ -595,8 +598,9 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
 
     def _nm_cb(_xk):
         trace.polish_iterations += 1
-        if progress and trace.polish_iterations % 20 == 0:
-            progress("polish", min(trace.polish_iterations, polish_evals), polish_evals)
+        done = trace.polish_iterations - first_search[1]
+        if progress and done % 20 == 0:
+            progress("polish", min(done, polish_evals), polish_evals)
 
     def search_and_polish(de_seed: int) -> tuple[np.ndarray, float]:
         """Global search, delay scan and polish from one random seed: (theta, transport delay s)."""
@@ -644,7 +648,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         # walk up it to the box's upper limit; a second search from another seed, the better on training kept
         log.info("the search settled at the exponent's upper limit (n = %.3g): searching again", params.n)
         trace.restarts += 1
-        first_search[0] = trace.generations
+        first_search[:] = [trace.generations, trace.polish_iterations]
         best2, delay2 = search_and_polish(seed + 1)
         again = evaluate(best2, delay2)
         if again[3] < train_rms:

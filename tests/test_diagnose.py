@@ -563,6 +563,14 @@ def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the
     # a log flown at one speed cannot tell, and only the masked samples count
     assert gain_by_airspeed(w, w + wiggle, w, np.full(n, 0.1), every) is None
     assert gain_by_airspeed(w, w + wiggle, w, q, np.zeros(n, bool)) is None
+    # standing still (no airspeed, or none logged: q = 0) is not the slow third of the flight
+    parked = np.where(np.arange(n) < n // 2, 0.0, q)
+    split = gain_by_airspeed(w, w + wiggle * parked / 0.3, w, parked, every)
+    assert split["q_slow_kpa"] > 0 and grows_with_load(split)
+    assert gain_by_airspeed(w, w + wiggle, w, np.zeros(n), every) is None
+    # no gain, or a loss, on the slow third: the comparison needs no ratio
+    loss = dict(own, gain_slow_ms=-1e-4, fast_over_slow=None)
+    assert grows_with_load(loss) and not grows_with_load(dict(loss, gain_fast_ms=-1e-5))
 
 
 def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loads(monkeypatch):
@@ -583,3 +591,7 @@ def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loa
     assert "aero load's" in drop["reason"] and drop["gain_by_airspeed"]["q_fast_kpa"] > 0
     (alt,) = moved.report["alternatives"]  # what each decision gave to the load, for the benchmark's table
     assert alt["verdict"] == ["aero_load"] and [x["effect"] for x in alt["to_aero_load"]] == ["friction"]
+    # the report reads as a verdict of one: the load chosen in round 1, not doubted for the friction it took over
+    rows = {c["effect"]: c for c in moved.report["candidates"]}
+    assert rows["aero_load"]["chosen"]["round"] == 1 and rows["aero_load"]["confidence"] > 0.9
+    assert rows["friction"]["confidence"] == 0.0 and not rows["friction"]["in_verdict"]

@@ -92,6 +92,8 @@ def test_a_search_at_the_exponents_upper_limit_is_run_again_and_the_better_kept(
     kept = min((first, second), key=lambda r: r.train_rms)
     assert both.params == kept.params and both.train_rms == kept.train_rms
     assert both.heldout_rms == kept.heldout_rms
+    assert both.fit_dict()["searched_again"] and "searched_again" not in first.fit_dict()
+    assert both.fit_dict()["second_search_kept"] == both.trace.restart_kept
 
 
 def test_only_the_exponents_upper_limit_counts_as_its_edge():

@@ -79,8 +79,8 @@ class Progress:
             return
         from tqdm import tqdm
 
-        label = {"search": "global search (DE)", "polish": "polish (Nelder-Mead)",
-                 "delay": "transport delay scan"}.get(stage, stage)
+        label = {"search": "global search (DE)", "search again": "global search again, from the next seed (DE)",
+                 "polish": "polish (Nelder-Mead)", "delay": "transport delay scan"}.get(stage, stage)
         if not sys.stderr.isatty():  # a log file gets a line per quarter, not a redrawn bar
             q = 4 * i // max(n, 1)
             if stage != self.stage or q != getattr(self, "_q", -1):
