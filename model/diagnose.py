@@ -525,8 +525,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         alternatives.append({"decision": d.to_dict(), "verdict": list(alt.selected),
                              "effects": {n: alt.fit.values([n])[n] for n in alt.selected},
                              "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
-                             "to_aero_load": [{"effect": x["effect"]} | x["gain_by_airspeed"] for x in alt.dropped
-                                              if "gain_by_airspeed" in x]})
+                             "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
     selected = list(path.selected)
     cur = path.fit
     rounds, ambiguities, chosen_conf = _main_rounds(ex, path, opt)
