@@ -15,7 +15,9 @@
    so a model that never fitted perfectly is not blamed on a new effect.
 2. **Which.** Every effect of the vocabulary is fitted as an augmentation
    (``model.diag_fit``) on alternating training blocks of the log and scored
-   on the blocks in between. Greedy forward selection: a round fits every
+   on the blocks in between (the two blocks where the command moves fastest
+   fall one on each side: a slew limit or a delay that shows only there is
+   both fitted and tested). Greedy forward selection: a round fits every
    remaining effect jointly with those already chosen and takes the best by a
    penalised held-out criterion (effective samples x log MSE + 2 per extra
    parameter) among those one test admits (``Decision``): a held-out gain
@@ -584,7 +586,9 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
         "alternatives": alternatives,
-        "split": {"scheme": "10 alternating blocks, blocks 2, 5, 7, 10 scored", "warmup_samples": sp.start,
+        "split": {"scheme": "10 alternating blocks, 4 scored, the two where the command moves fastest one on "
+                            "each side", "scored_blocks": [k + 1 for k, b in enumerate(sp.blocks) if b[2] == "score"],
+                  "warmup_samples": sp.start,
                   "train_samples": int(sp.train.sum()), "score_samples": int(sp.score.sum()),
                   "score_chunks": int(sp.chunks.max() + 1)},
         "nominal_effects": base.to_dict(),
@@ -714,7 +718,8 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         judged = ex.rounds[pre]
         cur = ex.fit_of(pre) if pre else ex.nominal
         rounds.append(judged)
-        acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain)]
+        # an effect given to the aero load is the load's: not a candidate of its own, nor a rival
+        acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain) and j.name not in path.to_load]
         for j in judged:
             j.confidence = 0.0
             j.ambiguous_with_best = False
@@ -729,8 +734,7 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         best_conf = support[best.name]
         # a runner-up taken for what it explains with a second effect is not made less likely by a candidate
         # that explains more alone
-        rivals = [] if k == 0 and path.from_runner_up else [j for j in acc if j is not best
-                                                            and j.name not in path.to_load]
+        rivals = [] if k == 0 and path.from_runner_up else [j for j in acc if j is not best]
         for j in rivals:
             # is the better-scoring of the two better than the other? (best may be the simpler of equals)
             worse, better = (j, best) if j.fit.score_mse >= best.fit.score_mse else (best, j)
