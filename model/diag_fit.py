@@ -83,6 +83,7 @@ class Split:
     chunks: np.ndarray
     start: int
     blocks: list[tuple[int, int, str]]
+    pattern: tuple[int, ...] = ()  # the scored blocks, numbered from 0 (empty blocks included)
 
 
 SCORE_PATTERN = (1, 4, 6, 9)  # of 10 blocks: 40 % scored, spread over the log, the last block scored
@@ -112,9 +113,10 @@ def balanced_pattern(speeds: np.ndarray, pattern: tuple[int, ...]) -> tuple[int,
     A slew limit, a delay or a lag shows most where the command moves fastest. If the log's fastest
     stretches all fall in training blocks, the held-out test sees no evidence of such an effect; if they
     all fall in scored blocks, the fit sees none. When the two fastest blocks are on the same side, the
-    fastest one (or, both being scored, the one that is not the last block) changes side with the block
-    of the other side nearest to it in time (never the last block, which stays scored: a drift is tested
-    where it has grown most). Parameter-free; otherwise the pattern is kept."""
+    fastest one changes side (the other one if the fastest is the last block) with the block of the
+    other side nearest to it in time, the slower of two equally near. The last block, when scored, never
+    moves: a drift is tested where it has grown most. No threshold: on a log whose blocks all move
+    alike the two fastest are picked by small differences, as arbitrary as the fixed pattern itself."""
     n = speeds.size
     scored = set(p for p in pattern if p < n)
     if n < 4 or len(scored) < 2 or not np.any(speeds > 0):
@@ -122,7 +124,7 @@ def balanced_pattern(speeds: np.ndarray, pattern: tuple[int, ...]) -> tuple[int,
     a, b = (int(i) for i in np.argsort(-speeds, kind="stable")[:2])
     if (a in scored) != (b in scored):
         return tuple(sorted(scored))
-    last = n - 1
+    last = n - 1 if n - 1 in scored else -1
     if a in scored:  # both scored: one goes to training
         mover = a if a != last else b
         others = [x for x in range(n) if x not in scored]
@@ -166,7 +168,7 @@ def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float 
         idx = np.flatnonzero(after & (pos == b))
         if idx.size:
             blocks.append((int(idx[0]), int(idx[-1]) + 1, "score" if b in pattern else "train"))
-    return Split(train, score, chunks, start, blocks)
+    return Split(train, score, chunks, start, blocks, pattern)
 
 
 # ---- parameter boxes ---------------------------------------------------------------------------

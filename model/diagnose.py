@@ -586,8 +586,8 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
         "alternatives": alternatives,
-        "split": {"scheme": "10 alternating blocks, 4 scored, the two where the command moves fastest one on "
-                            "each side", "scored_blocks": [k + 1 for k, b in enumerate(sp.blocks) if b[2] == "score"],
+        "split": {"scheme": "10 blocks, 4 scored (2, 5, 7, 10 unless the two where the command moves fastest "
+                            "would then be on the same side)", "scored_blocks": [b + 1 for b in sp.pattern],
                   "warmup_samples": sp.start,
                   "train_samples": int(sp.train.sum()), "score_samples": int(sp.score.sum()),
                   "score_chunks": int(sp.chunks.max() + 1)},
