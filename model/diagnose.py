@@ -18,12 +18,8 @@
    on the blocks in between (the two blocks where the command moves fastest
    fall one on each side: a slew limit or a delay that shows only there is
    both fitted and tested). Greedy forward selection: a round fits every
-   remaining effect jointly with those already chosen (a candidate that on its
-   own explained at least half of what a chosen effect did is also refitted
-   from its own first-round fit, with the chosen effect freed: held at the
-   value that let it stand in for both, as a delay does for a delay and a
-   sensor lag, the chosen effect leaves it nothing to add) and takes the best
-   by a penalised held-out criterion (effective samples x log MSE + 2 per extra
+   remaining effect jointly with those already chosen and takes the best by a
+   penalised held-out criterion (effective samples x log MSE + 2 per extra
    parameter) among those one test admits (``Decision``): a held-out gain
    significant in a forecast-encompassing test (``diag_stats.paired_gain``,
    Bonferroni over the effects tried), material against the floor, and closing
@@ -258,18 +254,6 @@ class Explorer:
         level, or not material under ``d``: the two are equal explanations."""
         return g.p_value > self.opt.ambiguity_alpha or g.gain < d.min_gain * self.floor2
 
-    @property
-    def alone(self) -> dict[str, Fit]:
-        """Each candidate's first-round fit (on its own)."""
-        return {j.name: j.fit for j in self.rounds.get((), [])}
-
-    def rivals(self, selected: tuple[str, ...], remaining: list[str]) -> list[str]:
-        """The remaining candidates that on their own explained at least half of what a chosen effect did
-        (held-out gain in the first round): they share its signature."""
-        first = {j.name: j.gain.gain for j in self.rounds.get((), [])}
-        return [c for c in remaining if any(first.get(s, 0.0) > 0.0 and first.get(c, 0.0) >= 0.5 * first[s]
-                                            for s in selected)]
-
     def fit_of(self, selected: tuple[str, ...]) -> Fit:
         if selected not in self.fits:
             self.round(selected[:-1])
@@ -295,16 +279,6 @@ class Explorer:
             for c in sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]:
                 f = prob.fit(selected + (c,), start=fits[c].effects, grid_for="", max_evals=opt.max_evals)
                 if f.train_mse <= fits[c].train_mse:
-                    fits[c] = f
-            for c in self.rivals(selected, remaining):
-                # held at the values that let it stand in for c too, a chosen effect leaves c nothing to add:
-                # refit from c's own first-round fit with the chosen effects back at the nominal's
-                start = fits[c].effects
-                for s in selected:
-                    start = _neutral(start, s, self.base)
-                start = replace(start, **{f: getattr(self.alone[c].effects, f) for f in EFFECT_FIELDS[c][0]})
-                f = prob.fit(selected + (c,), start=start, grid_for="", max_evals=opt.max_evals)
-                if f.train_mse < fits[c].train_mse:
                     fits[c] = f
         if self.progress:
             self.progress(label, len(remaining), len(remaining))
