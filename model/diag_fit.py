@@ -90,11 +90,11 @@ SCORE_PATTERN = (1, 4, 6, 9)  # of 10 blocks: 40 % scored, spread over the log, 
 SPEED_WINDOW_S = 0.05  # input speed is measured over this span (robust to a stepped, quantised command)
 
 
-def block_speeds(t: np.ndarray, u: np.ndarray, pos: np.ndarray, n_blocks: int, after: np.ndarray) -> np.ndarray:
+def block_speeds(t: np.ndarray, u: np.ndarray, fs: float, pos: np.ndarray, n_blocks: int,
+                 after: np.ndarray) -> np.ndarray:
     """Peak input speed (mm/s) of each block: the 99th percentile of |u(t + h) - u(t)| / h, h about
-    ``SPEED_WINDOW_S``; 0 for a block without samples."""
+    ``SPEED_WINDOW_S`` (``fs`` samples per second); 0 for a block without samples."""
     n = t.size
-    fs = (n - 1) / max(t[-1] - t[0], 1e-12)
     k = max(1, int(round(SPEED_WINDOW_S * fs)))
     speed = np.zeros(n)
     if n > k:
@@ -131,7 +131,7 @@ def balanced_pattern(speeds: np.ndarray, pattern: tuple[int, ...]) -> tuple[int,
     else:  # both trained on: the fastest is scored
         mover = a
         others = [x for x in scored if x != last]
-    if mover == last or not others:
+    if not others:
         return tuple(sorted(scored))
     partner = min(others, key=lambda x: (abs(x - mover), speeds[x]))
     scored ^= {mover, partner}
@@ -152,11 +152,11 @@ def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float 
     train = np.zeros(n, bool)
     score = np.zeros(n, bool)
     after = np.arange(n) >= start
-    pattern = balanced_pattern(block_speeds(t, u, pos, n_blocks, after), SCORE_PATTERN)
+    fs = (n - 1) / max(t[-1] - t[0], 1e-12)
+    pattern = balanced_pattern(block_speeds(t, u, fs, pos, n_blocks, after), SCORE_PATTERN)
     is_score = np.isin(pos, pattern)
     score[after & is_score] = True
     train[after & ~is_score] = True
-    fs = (n - 1) / max(t[-1] - t[0], 1e-12)
     if chunk_s is None:  # ~96 chunks, 5 samples to 1 s long
         scored_s = (t[-1] - t[start]) * len(pattern) / n_blocks
         chunk_s = min(1.0, max(scored_s / 96.0, 5.0 / fs))

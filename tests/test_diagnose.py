@@ -142,16 +142,15 @@ def test_the_two_fastest_blocks_fall_one_on_each_side_of_the_split():
         assert not np.any(sp.train & sp.score)
         assert sp.pattern == tuple(b for b, kind in enumerate(got) if kind == "score")
     # the partner is the nearest block of the other side (the slower of two equally near), never the last
-    speeds = np.ones(10)
-    for fast, slower_neighbour, want in (((0, 5), None, (0, 4, 6, 9)),  # block 1 goes to training
+    for fast, faster_neighbour, want in (((0, 5), None, (0, 4, 6, 9)),  # block 1 goes to training
                                          ((8, 7), None, (1, 4, 8, 9)),  # block 6 trained, not the last
-                                         ((9, 4), 5, (1, 5, 6, 9)),  # the last stays; 4 swaps with 5,
-                                         ((9, 4), 3, (1, 3, 6, 9))):  # ... or with 3: the slower of the two
-        sp_ = speeds.copy()
-        sp_[list(fast)] = (3.0, 2.0)
-        if slower_neighbour is not None:
-            sp_[8 - slower_neighbour] = 1.5  # the other neighbour of 4 is the faster one
-        assert balanced_pattern(sp_, SCORE_PATTERN) == want, (fast, slower_neighbour)
+                                         ((9, 4), 3, (1, 5, 6, 9)),  # the last stays; 4 swaps with 5,
+                                         ((9, 4), 5, (1, 3, 6, 9))):  # ... or with 3: the slower of the two
+        speeds = np.ones(10)
+        speeds[list(fast)] = (3.0, 2.0)
+        if faster_neighbour is not None:
+            speeds[faster_neighbour] = 1.5
+        assert balanced_pattern(speeds, SCORE_PATTERN) == want, (fast, faster_neighbour)
     # a log at rest keeps the pattern, and so does one whose two fastest blocks are already on both sides
     assert balanced_pattern(np.zeros(10), SCORE_PATTERN) == SCORE_PATTERN
     assert balanced_pattern(np.linspace(1.0, 2.0, 10)[::-1], SCORE_PATTERN) == SCORE_PATTERN
