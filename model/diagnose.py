@@ -18,12 +18,7 @@
    on the blocks in between (the two blocks where the command moves fastest
    fall one on each side: a slew limit or a delay that shows only there is
    both fitted and tested). Greedy forward selection: a round fits every
-   remaining effect jointly with those already chosen (the candidate that
-   alone explained most in the first round, when that was at least half of
-   what the strongest chosen effect did, is also refitted from its own first-round fit
-   with the chosen effects freed: held at the value that let it stand in for
-   both, as a delay does for a delay and a sensor lag, the chosen effect
-   leaves it nothing to add) and takes the best by a
+   remaining effect jointly with those already chosen and takes the best by a
    penalised held-out criterion (effective samples x log MSE + 2 per extra
    parameter) among those one test admits (``Decision``): a held-out gain
    significant in a forecast-encompassing test (``diag_stats.paired_gain``,
@@ -259,16 +254,6 @@ class Explorer:
         level, or not material under ``d``: the two are equal explanations."""
         return g.p_value > self.opt.ambiguity_alpha or g.gain < d.min_gain * self.floor2
 
-    def rivals(self, selected: tuple[str, ...], remaining: list[str]) -> list[str]:
-        """The remaining candidate that on its own explained the most in the first round, if that was at least
-        half of what the strongest chosen effect explained there: it may share the chosen one's signature, and
-        the chosen one, held where it stands in for both (a delay for a delay and a sensor lag), leaves it
-        nothing to add in its screen. One at most: each costs a joint fit."""
-        first = {j.name: j.gain.gain for j in self.rounds.get((), [])}
-        ref = max((first.get(s, 0.0) for s in selected), default=0.0)
-        cands = [c for c in remaining if first.get(c, 0.0) > 0.0 and first[c] >= 0.5 * ref]
-        return [max(cands, key=first.get)] if ref > 0.0 and cands else []
-
     def fit_of(self, selected: tuple[str, ...]) -> Fit:
         if selected not in self.fits:
             self.round(selected[:-1])
@@ -294,16 +279,6 @@ class Explorer:
             for c in sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]:
                 f = prob.fit(selected + (c,), start=fits[c].effects, grid_for="", max_evals=opt.max_evals)
                 if f.train_mse <= fits[c].train_mse:
-                    fits[c] = f
-            alone = {j.name: j.fit for j in self.rounds.get((), [])}
-            for c in self.rivals(selected, remaining):
-                # refit from c's own first-round fit with the chosen effects back at the nominal's
-                start = fits[c].effects
-                for s in selected:
-                    start = _neutral(start, s, self.base)
-                start = replace(start, **{f: getattr(alone[c].effects, f) for f in EFFECT_FIELDS[c][0]})
-                f = prob.fit(selected + (c,), start=start, grid_for="", max_evals=opt.max_evals)
-                if f.train_mse < fits[c].train_mse:
                     fits[c] = f
         if self.progress:
             self.progress(label, len(remaining), len(remaining))

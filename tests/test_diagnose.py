@@ -404,18 +404,6 @@ def test_one_effect_alone_is_not_padded_with_a_second():
     assert d.verdict == ["drift"]
 
 
-def test_a_delay_and_a_sensor_lag_together_are_both_named():
-    """A transport delay and two equal sensor lags: each alone explains nearly all of the log (both are
-    latency), so once one is chosen, held at the value that lets it stand in for the other, the other adds
-    nothing in its screen. Refitted from its own first-round fit (the chosen one back at the nominal's), the
-    pair is found at its true sizes. Before, only the sensor lag was named."""
-    t, u, w, v = make_log(Effects(delay_s=0.03, sensor_tau_s=0.04, sensor_stage_ratio=1.0), seed=31)
-    d = diagnose(t, u, w, v, nominal_model())
-    assert sorted(d.verdict) == ["delay", "sensor_lag"]
-    assert d.model.effects.delay_s == pytest.approx(0.03, rel=0.15)
-    assert d.model.effects.sensor_tau_s == pytest.approx(0.04, rel=0.15)
-
-
 def test_diagnose_reports_progress_through_its_callback():
     seen = []
     t, u, w, v = make_log(TRUE["drift"][0], seed=26, duration=10.0)
