@@ -126,6 +126,24 @@ def fold_table(folds: dict, seeds: list[int]) -> str:
     return "\n".join(lines)
 
 
+def default_table(results: list[dict], default: str) -> str:
+    """Per family: what the shipped default decision (the one users run) gives, against the targets. The
+    default was set on the benchmark's folds in an earlier round, so unlike the fold table this is not a
+    held-out figure."""
+    lines = [f"{'family':<20} {'singles exact':>14} {'pairs exact':>13} {'false alarms':>12} "
+             f"{'gap closed min / median':>24}   targets"]
+    fams = sorted({r["family"] for r in results})
+    for fam in [*fams, None]:
+        rt = rates([r for r in results if fam is None or r["family"] == fam], default)
+        gc = f"{rt['min_closed']:.0%} / {rt['median_closed']:.0%}" if math.isfinite(rt["median_closed"]) else "-"
+        ok = [_ok(rt["single_rate"], TARGETS["single"], True), _ok(rt["pair_rate"], TARGETS["pairs"], True),
+              _ok(rt["fa_rate"], TARGETS["false_alarm"], False), _ok(rt["min_closed"], TARGETS["min_closed"], True)]
+        lines.append(f"{fam or 'all':<20} {_pct(rt['single_ok'], rt['singles']):>14} "
+                     f"{_pct(rt['pair_ok'], rt['pairs']):>13} {_pct(rt['false_alarms'], rt['nones']):>12} "
+                     f"{gc:>24}   {' '.join(o for o in ok if o) or '-'}")
+    return "\n".join(lines)
+
+
 COUNTS = ("singles", "single_ok", "pairs", "pair_ok", "nones", "false_alarms")
 
 
@@ -206,11 +224,12 @@ def effect_table(results: list[dict], folds: dict) -> str:
     return "\n".join(lines)
 
 
-def misses(results: list[dict], folds: dict) -> str:
-    dk_of = {fam: dk for fam, (dk, _) in folds.items()}
+def misses(results: list[dict], folds: dict | None = None, default: str = "") -> str:
+    """Cases whose verdict is not the truth, each with its fold's decision (or with ``default`` for all)."""
+    dk_of = {fam: dk for fam, (dk, _) in folds.items()} if folds is not None else {}
     lines = []
     for r in results:
-        v = verdict_at(r, dk_of[r["family"]])
+        v = verdict_at(r, dk_of.get(r["family"], default))
         if v != r["truth"]:
             mags = ", ".join(f"{k} {m:.1f}x noise" for k, m in r["magnitude_x_noise"].items())
             lines.append(f"  {r['plant']:<28} truth {r['truth'] or '[]'} ({mags or 'none'}; bench misfit "
