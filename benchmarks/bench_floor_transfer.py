@@ -21,7 +21,6 @@ predicts the field; above 1 the field is worse than the bench said.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -37,6 +36,7 @@ from _common import table  # noqa: E402
 from plants import FAMILIES, draw_plants, run_log  # noqa: E402
 
 from warpbridge.bridge.commands.modelio import load_model  # noqa: E402
+from warpbridge.model.diagnose import known_error  # noqa: E402
 from warpbridge.model.identify import noise_floor  # noqa: E402
 
 
@@ -50,8 +50,6 @@ def plant_ratios(family: str, seed: int, index: int, cache: Path) -> dict:
         work = Path(tmp)
         model = blind.identified_model(plant, seed, index, args, work)
         mf = load_model(model)
-        known = mf.model_error.known_error_deg if mf.model_error is not None else 0.0
-        misfit = math.sqrt(max(mf.fit.heldout_rms_deg ** 2 - mf.fit.noise_deg ** 2, 0.0))
         nones = [cs for names, cs in blind.draw_cases(seed, family, index, 2, 3) if not names]
         for k, cs in enumerate(nones):
             fc = blind.field_case(plant, cs, (), blind.FIELD_S, blind.RATE)
@@ -62,9 +60,11 @@ def plant_ratios(family: str, seed: int, index: int, cache: Path) -> dict:
                 csv = work / f"{what}{k}.csv"
                 blind.write_log(csv, lg)
                 nz = noise_floor(lg.w)
-                for suffix, corrected, err in (("", True, known), ("_bare", False, misfit)):
+                for suffix, corrected in (("", True), ("_bare", False)):
+                    # the floor diagnose judges by: with the model-error model, or identification's misfit
+                    err = known_error(mf, nz, corrected)
                     mse = blind.predict_mse(csv, model, lg.w, lg.t, work, f"{what}{k}{suffix}", corrected)
-                    out[what + suffix].append(math.sqrt(mse) / math.sqrt(nz ** 2 + err ** 2))
+                    out[what + suffix].append(float(np.sqrt(mse / (nz ** 2 + err ** 2))))
     return out
 
 
