@@ -211,6 +211,29 @@ def known_error(model: ModelFile, noise: float, use_model_error: bool) -> float:
     return model_error(model.fit, noise)
 
 
+LATENCY_FIELDS = {"delay": "delay_s", "sensor_lag": "sensor_tau_s"}  # effects that each add latency
+
+
+def shared_latency_start(eff: Effects, selected: tuple[str, ...], name: str, base: Effects) -> Effects:
+    """Where a joint fit of latency effect ``name`` with a chosen one starts: the chosen one's latency beyond
+    the nominal's shared half and half between the two.
+
+    A delay and a sensor lag each stand in for both (over a slow input a lag is about a delay): once one is
+    chosen it carries the latency of both, and the other, screened with it held, comes back at nothing, a
+    point the joint fit cannot leave (neither moves alone without a loss). From the half-and-half split the
+    fit can go either way: to one of them (the other back to nothing) or to both."""
+    if name not in LATENCY_FIELDS:
+        return eff
+    chosen = next((s for s in selected if s in LATENCY_FIELDS and s != name), None)
+    if chosen is None:
+        return eff
+    fc, fn = LATENCY_FIELDS[chosen], LATENCY_FIELDS[name]
+    excess = getattr(eff, fc) - getattr(base, fc)
+    if not excess > 0:
+        return eff
+    return replace(eff, **{fc: getattr(base, fc) + 0.5 * excess, fn: getattr(base, fn) + 0.5 * excess})
+
+
 def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
     """``eff`` with effect ``name`` back at the nominal model's own value."""
     return replace(eff, **{f: getattr(base, f) for f in EFFECT_FIELDS[name][0]})
@@ -276,8 +299,13 @@ class Explorer:
             fits[c] = prob.fit(selected + (c,), start=cur.effects, grid_for=c, free_nonlinear=(c,),
                                max_evals=opt.max_evals)
         if selected:
-            for c in sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]:
-                f = prob.fit(selected + (c,), start=fits[c].effects, grid_for="", max_evals=opt.max_evals)
+            starts = {c: shared_latency_start(fits[c].effects, selected, c, self.base) for c in fits}
+            top = sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]
+            # a latency effect beside a chosen one is refitted from the shared split even when its screen
+            # (at nothing, the chosen one carrying both) ranks it low
+            top += [c for c in fits if c not in top and starts[c] is not fits[c].effects]
+            for c in top:
+                f = prob.fit(selected + (c,), start=starts[c], grid_for="", max_evals=opt.max_evals)
                 if f.train_mse <= fits[c].train_mse:
                     fits[c] = f
         if self.progress:

@@ -15,7 +15,7 @@ from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain
 from warpbridge.model.diag_where import PHASES, phase_labels
-from warpbridge.model.diagnose import DECISION_GRID, DiagnoseOptions, diagnose
+from warpbridge.model.diagnose import DECISION_GRID, DiagnoseOptions, diagnose, shared_latency_start
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.model_error import bench_error_model
@@ -402,6 +402,30 @@ def test_one_effect_alone_is_not_padded_with_a_second():
     w = w + 0.6 * (1.0 - np.exp(-t / 15.0))
     d = diagnose(t, u, w, v, nominal_model())
     assert d.verdict == ["drift"]
+
+
+def test_a_delay_and_a_sensor_lag_together_are_both_named():
+    """A transport delay and two equal sensor lags: each alone explains nearly all of the log (both are
+    latency), so once one is chosen it carries both and the other, screened with it held, adds nothing.
+    Refitted from the chosen one's latency split half and half between the two, the pair is found: the
+    delay at its size, the lag's two stages at their total time constant (how it splits between the stages
+    is weakly seen). Without the split only the sensor lag was named."""
+    t, u, w, v = make_log(Effects(delay_s=0.03, sensor_tau_s=0.04, sensor_stage_ratio=1.0), seed=31)
+    d = diagnose(t, u, w, v, nominal_model())
+    assert sorted(d.verdict) == ["delay", "sensor_lag"]
+    e = d.model.effects
+    assert e.delay_s == pytest.approx(0.03, rel=0.15)
+    assert e.sensor_tau_s * (1.0 + e.sensor_stage_ratio) == pytest.approx(0.08, rel=0.15)
+
+
+def test_the_shared_latency_start_splits_only_a_chosen_latency():
+    base = Effects(delay_s=0.01)
+    eff = Effects(delay_s=0.09)
+    split = shared_latency_start(eff, ("delay",), "sensor_lag", base)
+    assert split.delay_s == pytest.approx(0.05) and split.sensor_tau_s == pytest.approx(0.04)
+    assert shared_latency_start(eff, ("friction",), "sensor_lag", base) is eff
+    assert shared_latency_start(eff, ("delay",), "backlash", base) is eff
+    assert shared_latency_start(Effects(delay_s=0.01), ("delay",), "sensor_lag", base).sensor_tau_s == 0.0
 
 
 def test_diagnose_reports_progress_through_its_callback():
