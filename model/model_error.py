@@ -128,15 +128,33 @@ def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _correction(x, w, v, q, g, theta, w_center, w_scale, x_span, nsets, trans_l, mem_l):
+def _travel_terms(x, x_span, trans_l, mem_l):
+    """What the correction takes from the input alone, per sample: direction, the transition terms
+    exp(-d / (l x_span)), the memory terms exp(-rel / l) and the previous leg's share of the span."""
     n = x.shape[0]
-    out = np.empty(n)
     eps = DEADBAND * x_span
     dirs, dists, prevs = travel_since_reversal(x, eps)
+    et = np.empty((n, trans_l.shape[0]))
+    em = np.empty((n, mem_l.shape[0]))
+    legs = np.empty(n)
     for k in range(n):
-        s = dirs[k]
         d = dists[k]
         prev = prevs[k]
+        for i in range(trans_l.shape[0]):
+            et[k, i] = math.exp(-d / (trans_l[i] * x_span))
+        legs[k] = min(prev / x_span, 1.0)
+        rel = min(d / max(prev, eps), 2.0)
+        for i in range(mem_l.shape[0]):
+            em[k, i] = math.exp(-rel / mem_l[i])
+    return dirs, et, em, legs
+
+
+@njit(cache=True)
+def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs):
+    n = w.shape[0]
+    out = np.empty(n)
+    for k in range(n):
+        s = dirs[k]
         h = (w[k] - w_center) / w_scale
         h = min(max(h, -LEVEL_CLIP), LEVEL_CLIP)
         p1 = h
@@ -148,17 +166,16 @@ def _correction(x, w, v, q, g, theta, w_center, w_scale, x_span, nsets, trans_l,
             acc += s * (theta[j] + theta[j + 1] * p1 + theta[j + 2] * p2)
             j += 3
         if nsets >= 3:
-            for i in range(trans_l.shape[0]):
-                acc += theta[j] * s * math.exp(-d / (trans_l[i] * x_span))
+            for i in range(et.shape[1]):
+                acc += theta[j] * s * et[k, i]
                 j += 1
         if nsets >= 4:
             acc += theta[j] * v[k] + theta[j + 1] * v[k] * p1
             j += 2
         if nsets >= 5:
-            leg = min(prev / x_span, 1.0)
-            rel = min(d / max(prev, eps), 2.0)
-            for i in range(mem_l.shape[0]):
-                acc += theta[j] * s * math.exp(-rel / mem_l[i])
+            leg = legs[k]
+            for i in range(em.shape[1]):
+                acc += theta[j] * s * em[k, i]
                 j += 1
             acc += theta[j] * s * leg + theta[j + 1] * s * leg * leg
             j += 2
@@ -200,6 +217,7 @@ class ErrorModel:
     noise_deg: float = math.nan
     samples: int = 0
     extra: dict = field(default_factory=dict)
+    _input_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def known_error_deg(self) -> float:
@@ -220,12 +238,22 @@ class ErrorModel:
         nsets = len(self.sets)
         t = np.ascontiguousarray(t, dtype=np.float64)
         v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
-        x = np.ascontiguousarray(x, dtype=np.float64)
-        q = _plays(x, self.x_span) if nsets >= 6 else np.zeros((w.size, 0))
+        dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64), nsets >= 6)
         g = lag_states(t, w, self.rate_scale) if nsets >= 7 else np.zeros((w.size, 0))
-        return _correction(x, w, v, q, g, self.theta, self.w_center,
-                           self.w_scale, self.x_span, nsets, np.array(TRANSITION_LENGTHS),
-                           np.array(MEMORY_LENGTHS))
+        return _correction(w, v, q, g, self.theta, self.w_center, self.w_scale, nsets, dirs, et, em, legs)
+
+    def _input_terms(self, x: np.ndarray, plays: bool) -> tuple:
+        """The terms that depend on the input alone (reused while a fit moves only the core: the same x)."""
+        key = hash(x.tobytes())
+        hit = self._input_cache.get(key)
+        if hit is not None and np.array_equal(hit[0], x):
+            return hit[1]
+        terms = _travel_terms(x, self.x_span, np.array(TRANSITION_LENGTHS), np.array(MEMORY_LENGTHS))
+        terms += (_plays(x, self.x_span) if plays else np.zeros((x.size, 0)),)
+        if len(self._input_cache) >= 4:
+            self._input_cache.pop(next(iter(self._input_cache)))
+        self._input_cache[key] = (x.copy(), terms)
+        return terms
 
     def corrected(self, t, x, w) -> np.ndarray:
         """The model's warp w plus its correction (w unchanged where the model left its range: NaN stays NaN)."""
