@@ -143,6 +143,22 @@ def test_the_compiled_correction_is_the_feature_matrix_times_theta():
         np.testing.assert_allclose(em.correction(t, u, w), X @ em.theta, rtol=0, atol=1e-10)
 
 
+def test_the_input_terms_reused_across_paths_give_each_path_its_own_correction():
+    """A model that has seen other travel paths corrects each path as the feature matrix says (the terms
+    kept from one path are never used for another, even one that differs in a single sample)."""
+    t, u, w = _log(seed=10)
+    span = float(np.ptp(u))
+    X = design(t, u, w, 6.0, 4.0, span, 25.0, FEATURE_SETS)
+    em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, np.random.default_rng(11).standard_normal(X.shape[1]))
+    u2 = u.copy()
+    u2[len(u) // 2] += 0.3 * span  # one sample moved: a reversal there and back
+    paths = [u, np.roll(u, 40), u2, u, u2, 0.5 * u]
+    for x in paths:
+        for wk in (w, w + 0.2):
+            expect = design(t, x, wk, 6.0, 4.0, span, 25.0, FEATURE_SETS) @ em.theta
+            np.testing.assert_allclose(em.correction(t, x, wk), expect, rtol=0, atol=1e-10)
+
+
 def _play(x: np.ndarray, r: float) -> np.ndarray:
     """A play (backlash) operator written out in plain Python, independent of the module's kernel."""
     out, p = np.empty_like(x), float(x[0])
