@@ -33,11 +33,9 @@ from warpbridge.model import model_error  # noqa: E402
 FAMILIES = ("bouc-wen", "bouc-wen-phys", "dahl", "prandtl-ishlinskii", "sheath")
 
 
-def _recomputed(self, x: np.ndarray, plays: bool) -> tuple:
+def _recomputed(self, x: np.ndarray) -> tuple:
     """The baseline: the input terms computed afresh at every call."""
-    terms = model_error._travel_terms(x, self.x_span, np.array(model_error.TRANSITION_LENGTHS),
-                                      np.array(model_error.MEMORY_LENGTHS))
-    return terms + (model_error._plays(x, self.x_span) if plays else np.zeros((x.size, 0)),)
+    return model_error.input_terms(x, self.x_span, plays=len(self.sets) >= 6)
 
 
 def _strip(report: dict) -> dict:

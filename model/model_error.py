@@ -200,6 +200,13 @@ def _smooth_rate(t: np.ndarray, w: np.ndarray) -> np.ndarray:
     return r
 
 
+def input_terms(x: np.ndarray, x_span: float, plays: bool) -> tuple:
+    """What the correction takes from the input x alone: ``_travel_terms`` and, when the model has the play
+    set, the play states (else an empty column block)."""
+    terms = _travel_terms(x, x_span, np.array(TRANSITION_LENGTHS), np.array(MEMORY_LENGTHS))
+    return terms + (_plays(x, x_span) if plays else np.zeros((x.size, 0)),)
+
+
 @dataclass
 class ErrorModel:
     """A fitted model-error model: feature normalisation, chosen feature sets, coefficients and what it
@@ -238,18 +245,18 @@ class ErrorModel:
         nsets = len(self.sets)
         t = np.ascontiguousarray(t, dtype=np.float64)
         v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
-        dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64), nsets >= 6)
+        dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64))
         g = lag_states(t, w, self.rate_scale) if nsets >= 7 else np.zeros((w.size, 0))
         return _correction(w, v, q, g, self.theta, self.w_center, self.w_scale, nsets, dirs, et, em, legs)
 
-    def _input_terms(self, x: np.ndarray, plays: bool) -> tuple:
-        """The terms that depend on the input alone (reused while a fit moves only the core: the same x)."""
+    def _input_terms(self, x: np.ndarray) -> tuple:
+        """``input_terms`` of x for this model's sets, kept for the last few paths (a fit that moves only the
+        core runs the same x thousands of times)."""
         key = hash(x.tobytes())
         hit = self._input_cache.get(key)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
-        terms = _travel_terms(x, self.x_span, np.array(TRANSITION_LENGTHS), np.array(MEMORY_LENGTHS))
-        terms += (_plays(x, self.x_span) if plays else np.zeros((x.size, 0)),)
+        terms = input_terms(x, self.x_span, plays=len(self.sets) >= 6)
         if len(self._input_cache) >= 4:
             self._input_cache.pop(next(iter(self._input_cache)))
         self._input_cache[key] = (x.copy(), terms)
