@@ -363,7 +363,7 @@ class Problem:
             self._extra_flags = max(self._grid_run(p, x, capped=False)[0], 0)
             w_nom = self.core(effects)
             if not np.all(np.isfinite(w_nom)):  # run uncapped, exactly as ``predict`` would
-                w_nom = self._corrected(x, forward(p, x, z0=self.z0)[0])
+                w_nom = self._corrected(x, forward(p, x, z0=self.z0)[0], effects)
         self._pinned = (self._key(effects), w_nom)  # never evicted: every output-side candidate reuses it
 
     @staticmethod
@@ -373,8 +373,8 @@ class Problem:
     def _core_params(self, eff: Effects) -> BoucWenParams:
         return core_params(self.params, eff)
 
-    def _corrected(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return w if self.error_model is None else self.error_model.corrected(self.t, x, w)
+    def _corrected(self, x: np.ndarray, w: np.ndarray, eff: Effects) -> np.ndarray:
+        return w if self.error_model is None else self.error_model.corrected(self.t, x, w, eff.band_scale)
 
     def z0_for(self, p: BoucWenParams, x: np.ndarray) -> float:
         """Initial state for a candidate's core: the nominal's, moved as the algebraic state moves."""
@@ -401,7 +401,7 @@ class Problem:
             w[:] = np.nan  # beyond the model's monotone range: not a candidate
         else:
             fill_along_travel(x, run[1], run[2], w)
-        w = self._corrected(x, w)
+        w = self._corrected(x, w, eff)
         self._core[key] = w
         if len(self._core) > 8:
             self._core.popitem(last=False)

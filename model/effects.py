@@ -34,7 +34,9 @@ or the unloading edge. A sheath's band does not always change symmetrically:
 a Bouc-Wen band shrinks toward z = 0 rather than toward its middle, and a
 capstan sheath's pull and release branches sit unequally about the
 frictionless line, so a friction change that keeps the middle would leave an
-offset that a pre-tension change would have to explain.
+offset that a pre-tension change would have to explain. A model-error
+correction learned on the bench (``model.model_error``) scales its loop-shape
+terms with the band too (``Effects.band_scale``).
 
 A sheath with capstan friction has a second form of a friction change: after
 a reversal the far end stalls until the reversed slip has run along the whole
@@ -158,6 +160,12 @@ class Effects:
     def has_capstan(self) -> bool:
         """True when friction is in its capstan form (a stall pulling, releasing or both)."""
         return self.capstan_pull_ratio > 0 or self.capstan_release_ratio > 0
+
+    @property
+    def band_scale(self) -> float:
+        """How much the hysteresis band is scaled (friction's band form; 1 in its capstan form, which adds a
+        stall at each reversal instead): the model-error correction's loop-shape terms scale with it."""
+        return 1.0 if self.has_capstan else self.friction_scale
 
     @property
     def has_slack(self) -> bool:

@@ -35,7 +35,12 @@ on the bench log, so noise is not learned as structure; the cross-validated
 RMS after the correction is what the model is still known to get wrong.
 ``diagnose`` adds the correction to the model's core output, so that an
 effect is named by what changed between bench and field, not by what the
-model never captured. Units: t s, x mm (tendon travel into the core), w deg.
+model never captured. The loop-shape terms (branch, transition, memory,
+play) describe a misfit of the hysteresis band, so they scale with the band
+the core runs with: a friction change that scales the band by s
+(``Effects.band_scale``) scales them by s, as a wing whose friction halves
+also halves the part of its loop the model got wrong; the level, rate and
+lag terms (the backbone and the dynamics) stay. Units: t s, x mm (tendon travel into the core), w deg.
 No I/O.
 """
 
@@ -150,11 +155,11 @@ def _travel_terms(x, x_span, trans_l, mem_l):
 
 
 @njit(cache=True)
-def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs):
+def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs, band):
     n = w.shape[0]
     out = np.empty(n)
     for k in range(n):
-        s = dirs[k]
+        s = dirs[k] * band  # the loop-shape terms (branch, transition, memory, play) scale with the band
         h = (w[k] - w_center) / w_scale
         h = min(max(h, -LEVEL_CLIP), LEVEL_CLIP)
         p1 = h
@@ -181,7 +186,7 @@ def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs)
             j += 2
         if nsets >= 6:
             for i in range(q.shape[1]):
-                acc += theta[j] * q[k, i] + theta[j + 1] * q[k, i] * h
+                acc += band * (theta[j] * q[k, i] + theta[j + 1] * q[k, i] * h)
                 j += 2
         if nsets >= 7:
             for i in range(g.shape[1]):
@@ -236,9 +241,10 @@ class ErrorModel:
     def features(self, t, x, w) -> np.ndarray:
         return design(t, x, w, self.w_center, self.w_scale, self.x_span, self.rate_scale, self.sets)
 
-    def correction(self, t, x, w) -> np.ndarray:
+    def correction(self, t, x, w, band: float = 1.0) -> np.ndarray:
         """Warp (deg) to add to the model's core output along input x and model warp w (one compiled pass,
-        the same as ``features(t, x, w) @ theta``)."""
+        the same as ``features(t, x, w) @ theta`` with the loop-shape columns times ``band``, the scale of
+        the hysteresis band the core runs with: ``Effects.band_scale``)."""
         w = np.ascontiguousarray(w, dtype=np.float64)
         if self.theta.size == 0:
             return np.zeros(w.size)
@@ -247,7 +253,7 @@ class ErrorModel:
         v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
         dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64))
         g = lag_states(t, w, self.rate_scale) if nsets >= 7 else np.zeros((w.size, 0))
-        return _correction(w, v, q, g, self.theta, self.w_center, self.w_scale, nsets, dirs, et, em, legs)
+        return _correction(w, v, q, g, self.theta, self.w_center, self.w_scale, nsets, dirs, et, em, legs, band)
 
     def _input_terms(self, x: np.ndarray) -> tuple:
         """``input_terms`` of x for this model's sets, kept for the last few paths (a fit that moves only the
@@ -262,11 +268,11 @@ class ErrorModel:
         self._input_cache[key] = (x.copy(), terms)
         return terms
 
-    def corrected(self, t, x, w) -> np.ndarray:
+    def corrected(self, t, x, w, band: float = 1.0) -> np.ndarray:
         """The model's warp w plus its correction (w unchanged where the model left its range: NaN stays NaN)."""
         if not np.all(np.isfinite(w)):
             return w
-        return w + self.correction(t, x, w)
+        return w + self.correction(t, x, w, band)
 
     def to_dict(self) -> dict:
         return {"format": FORMAT, "w_center": self.w_center, "w_scale": self.w_scale, "x_span": self.x_span,

@@ -51,7 +51,7 @@ class Plant:
         x = apply_input_effects(self.effects, t, u)
         w, _, _ = forward(self.core_params(), x, z0=z0)
         if self.error_model is not None:
-            w = self.error_model.corrected(t, x, w)
+            w = self.error_model.corrected(t, x, w, self.effects.band_scale)
         return apply_output_effects(self.effects, t, w, airspeed)
 
 

@@ -111,3 +111,22 @@ def two_stage_lag(t: np.ndarray, w: np.ndarray, tau1: float, tau2: float, subste
             y2 += h * (y1 - y2) / tau2
         out[k] = y2
     return out
+
+
+def play_written_out(x: np.ndarray, r: float) -> np.ndarray:
+    """A play (backlash) operator of half-width r written out in plain Python, independent of the model's kernel."""
+    out, p = np.empty_like(x), float(x[0])
+    for k, v in enumerate(x):
+        p = min(max(p, v - r), v + r)
+        out[k] = p
+    return out
+
+
+SHEATH_PLAYS = ((0.25, 0.05), (0.12, 0.12), (0.06, 0.25))  # (weight deg/mm, half-width as a share of the span)
+
+
+def spread_friction(x: np.ndarray, span: float, friction: float = 1.0) -> np.ndarray:
+    """Warp (deg) of friction spread along a sheath, which one Bouc-Wen state cannot hold: a Prandtl-Ishlinskii
+    stack of plays on the tendon travel. Each stretch of sheath slips at a force in proportion to its friction, so
+    a ``friction`` change scales every play's width (and with it what each can hold)."""
+    return sum(c * (x - play_written_out(x, friction * f * span)) for c, f in SHEATH_PLAYS)

@@ -7,13 +7,14 @@ import math
 
 import numpy as np
 import pytest
-from helpers import two_stage_lag
+from helpers import spread_friction, two_stage_lag
 
 from warpbridge.model.boucwen import BoucWenParams, inverse
-from warpbridge.model.effects import Effects
+from warpbridge.model.effects import Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.model_error import (
     FEATURE_SETS,
+    SET_COLUMNS,
     ErrorModel,
     bench_error_model,
     design,
@@ -159,13 +160,33 @@ def test_the_input_terms_reused_across_paths_give_each_path_its_own_correction()
             np.testing.assert_allclose(em.correction(t, x, wk), expect, rtol=0, atol=1e-10)
 
 
-def _play(x: np.ndarray, r: float) -> np.ndarray:
-    """A play (backlash) operator written out in plain Python, independent of the module's kernel."""
-    out, p = np.empty_like(x), float(x[0])
-    for k, v in enumerate(x):
-        p = min(max(p, v - r), v + r)
-        out[k] = p
-    return out
+LOOP_SHAPE_SETS = ("branch", "transition", "memory", "play")  # a misfit of the band; level, rate, lag are not
+
+
+@pytest.mark.parametrize("band", [0.0, 0.4, 1.7])
+def test_the_loop_shape_terms_scale_with_the_band_and_the_rest_stays(band):
+    t, u, w = _log(seed=14)
+    span = float(np.ptp(u))
+    X = design(t, u, w, 6.0, 4.0, span, 25.0, FEATURE_SETS)
+    em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, np.random.default_rng(15).standard_normal(X.shape[1]))
+    scale = np.concatenate([np.full(SET_COLUMNS[s], band if s in LOOP_SHAPE_SETS else 1.0) for s in FEATURE_SETS])
+    np.testing.assert_allclose(em.correction(t, u, w, band), X @ (scale * em.theta), rtol=0, atol=1e-10)
+
+
+def test_the_plant_runs_the_correction_with_its_friction_band():
+    # a friction change that scales the band scales the loop-shape terms with it; in its capstan form (a stall
+    # at each reversal, the band kept) and with no friction change the correction is the bench's
+    t, u, _ = _log(seconds=10.0, seed=16)
+    span = float(np.ptp(u))
+    X = design(t, u, u, 6.0, 4.0, span, 25.0, FEATURE_SETS)
+    em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, 0.05 * np.random.default_rng(17).standard_normal(X.shape[1]))
+    for eff, band in ((Effects(friction_scale=0.6), 0.6), (Effects(friction_scale=1.4, friction_pivot=0.3), 1.4),
+                      (Effects(capstan_pull_ratio=0.05, capstan_release_ratio=0.02), 1.0), (Effects(), 1.0)):
+        w_core, _ = Plant(P, eff).simulate(t, u)  # no output-side effect: the core's warp
+        _, w_plant = Plant(P, eff, em).simulate(t, u)
+        x = apply_input_effects(eff, t, u)
+        np.testing.assert_allclose(w_plant, w_core + em.correction(t, x, w_core, band), rtol=0, atol=1e-12)
+        assert eff.band_scale == band
 
 
 def test_friction_spread_along_a_sheath_is_learned_by_the_play_set():
@@ -174,7 +195,7 @@ def test_friction_spread_along_a_sheath_is_learned_by_the_play_set():
     t, u, _ = _log(seconds=40.0, fs=200.0, seed=10)
     _, w = Plant(P).simulate(t, u)
     span = float(np.ptp(u))
-    extra = sum(c * (u - _play(u, f * span)) for c, f in ((0.25, 0.05), (0.12, 0.12), (0.06, 0.25)))
+    extra = spread_friction(u, span)
     noise = 0.02
     w_meas = w + extra + noise * np.random.default_rng(11).standard_normal(t.size)
     em = bench_error_model(P, Effects(), t, u, w_meas)
