@@ -388,8 +388,8 @@ def test_a_friction_change_scales_what_the_bench_knew_of_the_loop_and_is_named_a
     mf = ModelFile(params=P, fit=FitQuality(train_rms_deg=em.rms_before_deg, heldout_rms_deg=em.rms_before_deg,
                                             noise_deg=NOISE), model_error=em)
     # friction falls to 0.15 of the bench's: the loop-shape misfit the bench taught (the spread part) shrinks with
-    # it, so the scale is recovered and what is left is the floor (with the bench's correction at full size
-    # the scale came out 0.21 and the held-out RMS at 2.7x the floor)
+    # it, so the scale is recovered and what is left is the floor (with the bench's correction at full size,
+    # c195663, the scale came out 0.21 and this test failed)
     t, u, w, v = _sheath_log(0.15, seed=26)
     d = diagnose(t, u, w, v, mf)
     assert d.verdict == ["friction"]
