@@ -265,9 +265,10 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
     write_log(check_csv, chk)
     write_log(check0_csv, chk0)
     report = work / f"{tag}-report.json"
+    threads = getattr(args, "threads", 1)
     t0 = time.perf_counter()
     code, text = run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(report),
-                          "--sensitivity", "--quiet"])
+                          "--sensitivity", "--quiet", "--jobs", str(threads)])
     seconds_sens = time.perf_counter() - t0
     if code != 0:
         raise RuntimeError(f"diagnose failed on {tag}: {text}")
@@ -276,7 +277,7 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
     if timed:
         t0 = time.perf_counter()
         code, text = run_cli(["diagnose", str(field_csv), "--model", str(model), "--report",
-                              str(work / f"{tag}-plain.json"), "--quiet"])
+                              str(work / f"{tag}-plain.json"), "--quiet", "--jobs", str(threads)])
         seconds = time.perf_counter() - t0
     from warpbridge.bridge.commands.modelio import load_model, save_model
     from warpbridge.model.effects import Effects
@@ -395,6 +396,8 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=RATE, help="samples per second")
     ap.add_argument("--bench-duration", type=float, default=BENCH_S, help="bench (identification) log seconds")
     ap.add_argument("--jobs", type=int, default=0, help="parallel cases (default: the cores free now)")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="threads each diagnose fits on (default 1: --jobs already runs cases side by side)")
     ap.add_argument("--timing-every", type=int, default=4,
                     help="time a plain diagnose (no --sensitivity) on every n-th case (default 4)")
     ap.add_argument("--cache", type=Path, default=default_cache(), help="cache folder (outside the repository)")

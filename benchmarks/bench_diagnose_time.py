@@ -1,20 +1,27 @@
-"""What ``warpbridge diagnose`` costs on 60 s at 500 Hz, with the model-error correction's input terms reused
-(as shipped) against recomputed at every evaluation (the code before they were cached), in the same run.
+"""What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
-    python benchmarks/bench_diagnose_time.py [--seed 2] [--cases 10,12] [--repeats 1] [--cache DIR]
+    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms] [--threads 2] [--seed 2]
+                                             [--cases 10,12] [--repeats 1] [--cache DIR]
+
+``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
+by side) against ``--threads`` threads (``--jobs N``; the command's default is the cores free at its start).
+``--compare input-terms``: the model-error correction's input terms reused (as shipped) against recomputed at
+every evaluation (the code before they were cached), both on one thread.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant 0 of each family at ``--seed``, the case
 numbers given; 10-12 are its pairs, the slowest), the bench models from its cache (identified there when
 missing). Each case runs plain ``diagnose`` through ``bridge.cli.main`` once per variant and repeat, the
 variants alternating in order, one process at a time. The report must be the same either way (checked:
-the verdict and every fitted parameter); the table gives each case's times and their ratio, then the
-median ratio and the slowest time per variant.
+the verdict, every fitted parameter and every candidate's figures; only the count of core runs may differ
+between thread counts, each thread caching its own); the table gives each case's times and their ratio,
+then the median ratio and the slowest time per variant.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -39,17 +46,20 @@ def _recomputed(self, x: np.ndarray) -> tuple:
 
 
 def _strip(report: dict) -> dict:
-    return {k: v for k, v in report.items() if k not in ("seconds", "created")}
+    return {k: v for k, v in report.items() if k not in ("seconds", "created", "model_evaluations")}
 
 
-def timed_diagnose(field_csv: Path, model: Path, out: Path, reuse: bool) -> tuple[float, dict]:
+def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: str, threads: int
+                   ) -> tuple[float, dict]:
+    """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline."""
     cached = model_error.ErrorModel._input_terms
-    if not reuse:
+    jobs = threads if compare == "threads" and new else 1
+    if compare == "input-terms" and not new:
         model_error.ErrorModel._input_terms = _recomputed
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
-                                    "--quiet"])
+                                    "--quiet", "--jobs", str(jobs)])
         seconds = time.perf_counter() - t0
     finally:
         model_error.ErrorModel._input_terms = cached
@@ -60,6 +70,10 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, reuse: bool) -> tupl
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--compare", choices=("threads", "input-terms"), default="threads",
+                    help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
+                         "against recomputed")
+    ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--repeats", type=int, default=1)
@@ -69,9 +83,15 @@ def main(argv: list[str] | None = None) -> int:
                               duration=blind.FIELD_S, timing_every=1)
     cases = [int(c) for c in a.cases.split(",")]
     rows = []
-    print(f"diagnose, 60 s at 500 Hz: input terms reused (shipped) vs recomputed (baseline); seed {a.seed}, "
-          f"plant 0 of each family, cases {a.cases}, {a.repeats} repeat(s)", flush=True)
-    print(f"{'case':<28}{'truth':<26}{'baseline s':>11}{'reused s':>10}{'ratio':>7}  same report", flush=True)
+    base_name, new_name = (("1 thread", f"{a.threads} threads") if a.compare == "threads"
+                           else ("recomputed", "reused"))
+    what = (f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})" if a.compare == "threads"
+            else "input terms reused (shipped) vs recomputed (baseline), one thread")
+    print(f"diagnose, 60 s at 500 Hz: {what}; seed {a.seed}, plant 0 of each family, cases {a.cases}, "
+          f"{a.repeats} repeat(s); load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
+          flush=True)
+    print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  same report",
+          flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for n, family in enumerate(FAMILIES):
@@ -86,17 +106,19 @@ def main(argv: list[str] | None = None) -> int:
                 blind.write_log(field_csv, lg)
                 for r in range(a.repeats):
                     order = (False, True) if (n + k + r) % 2 == 0 else (True, False)
-                    got = {reuse: timed_diagnose(field_csv, model, work / f"rep-{reuse}.json", reuse)
-                           for reuse in order}
+                    got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads)
+                           for v in order}
                     (tb, rb), (tr, rr) = got[False], got[True]
                     same = rb == rr
                     rows.append((tb, tr, same))
-                    print(f"{plant.name + f'-c{k}':<28}{'+'.join(names):<26}{tb:>11.1f}{tr:>10.1f}{tr / tb:>7.2f}  "
+                    print(f"{plant.name + f'-c{k}':<28}{'+'.join(names):<26}{tb:>13.1f}{tr:>13.1f}{tr / tb:>7.2f}  "
                           f"{'yes' if same else 'NO'}", flush=True)
     ratios = [tr / tb for tb, tr, _ in rows]
-    print(f"\n{len(rows)} runs: time ratio reused / recomputed median {statistics.median(ratios):.2f} "
-          f"(range {min(ratios):.2f}-{max(ratios):.2f}); slowest: baseline {max(r[0] for r in rows):.1f} s, "
-          f"reused {max(r[1] for r in rows):.1f} s; reports identical {sum(r[2] for r in rows)}/{len(rows)}")
+    print(f"\n{len(rows)} runs: time ratio {new_name} / {base_name} median {statistics.median(ratios):.2f} "
+          f"(range {min(ratios):.2f}-{max(ratios):.2f}); median: {base_name} "
+          f"{statistics.median(r[0] for r in rows):.1f} s, {new_name} {statistics.median(r[1] for r in rows):.1f} s; "
+          f"slowest: {base_name} {max(r[0] for r in rows):.1f} s, {new_name} {max(r[1] for r in rows):.1f} s; "
+          f"reports identical {sum(r[2] for r in rows)}/{len(rows)}; load average at the end {os.getloadavg()[0]:.1f}")
     return 0 if all(r[2] for r in rows) else 1
 
 

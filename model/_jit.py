@@ -104,13 +104,17 @@ def _use_versioned_cache(numba: Any) -> None:
 
 
 def njit(*args: Any, **options: Any) -> Any:
-    """``numba.njit`` (bare or with options) in compiled mode; the undecorated function otherwise."""
+    """``numba.njit`` (bare or with options; ``nogil`` unless told otherwise, so that threads can run kernels
+    side by side) in compiled mode; the undecorated function otherwise."""
     global _decorated
     _decorated = True
     if _mode == "compiled":
         import numba
 
         _use_versioned_cache(numba)
+        options.setdefault("nogil", True)  # callers may run kernels from several threads (diagnose's rounds)
+        if len(args) == 1 and callable(args[0]):
+            return numba.njit(**options)(args[0])
         return numba.njit(*args, **options)
     if len(args) == 1 and callable(args[0]) and not options:
         return args[0]

@@ -40,8 +40,11 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -345,8 +348,9 @@ class Problem:
         self.travel_step = travel_step * max(float(hi_u - lo_u), 1e-9)  # 0: every sample
         self.split = split or make_split(self.t, self.u)
         self.tau = self.t - self.t[0]
-        self._core: OrderedDict[tuple, np.ndarray] = OrderedDict()
-        self.evaluations = 0
+        self._local = threading.local()  # per thread: the core cache and its evaluation count (``fit``)
+        self._count_lock = threading.Lock()
+        self._evaluations = 0
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
         x = apply_input_effects(effects, self.t, self.u)
         p = self._core_params(effects)
@@ -365,6 +369,27 @@ class Problem:
             if not np.all(np.isfinite(w_nom)):  # run uncapped, exactly as ``predict`` would
                 w_nom = self._corrected(x, forward(p, x, z0=self.z0)[0], effects)
         self._pinned = (self._key(effects), w_nom)  # never evicted: every output-side candidate reuses it
+
+    @property
+    def _core(self) -> OrderedDict[tuple, np.ndarray]:
+        """The last few core runs of this thread (candidate fits may run side by side, ``Explorer.round``)."""
+        cache = getattr(self._local, "core", None)
+        if cache is None:
+            cache = self._local.core = OrderedDict()
+        return cache
+
+    @property
+    def evaluations(self) -> int:
+        """Core runs so far, all threads together."""
+        return self._evaluations
+
+    def _thread_evaluations(self) -> int:
+        return getattr(self._local, "evaluations", 0)
+
+    def _counted(self) -> None:
+        self._local.evaluations = self._thread_evaluations() + 1
+        with self._count_lock:
+            self._evaluations += 1
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
@@ -395,7 +420,7 @@ class Problem:
             return hit
         x = apply_input_effects(eff, self.t, self.u)
         p = self._core_params(eff)
-        self.evaluations += 1
+        self._counted()
         w = np.empty_like(x)
         if (self._check_reach and not _reachable(p, x)) or (run := self._grid_run(p, x, capped=True))[0] < 0:
             w[:] = np.nan  # beyond the model's monotone range: not a candidate
@@ -477,24 +502,41 @@ class Problem:
 
     # -- fitting --
     def fit(self, names, start: Effects | None = None, free_nonlinear=None, max_evals: int = 200,
-            grid_for: str | None = None) -> Fit:
+            grid_for: str | None = None, run: Callable[[list], list] | None = None) -> Fit:
         """Fit the effects ``names`` (their parameters on top of ``start``, default the nominal's).
 
         ``free_nonlinear`` limits which effects' nonlinear parameters move (default: all of ``names``);
         linear ones of every named effect are always solved. ``grid_for`` names the effect whose
-        parameters get a starting grid (default: the last of ``names``)."""
+        parameters get a starting grid (default: the last of ``names``). ``run`` maps a list of
+        argument-free jobs to their results (default: one after the other; it may run them side by side)."""
+        jobs = self.fit_jobs(names, start, free_nonlinear, max_evals, grid_for)
+        return self.best_of(run(jobs) if run is not None else [job() for job in jobs])
+
+    def fit_jobs(self, names, start: Effects | None = None, free_nonlinear=None, max_evals: int = 200,
+                 grid_for: str | None = None) -> list[Callable[[], Fit]]:
+        """``fit``'s independent pieces, one per combination of the moving effects' forms (``best_of`` picks)."""
         names = tuple(names)
         start = start or self.base
         movers = tuple(names if free_nonlinear is None else free_nonlinear)
         lin = tuple(f for n in names for f in linear_fields(n))
         if "aero_load" in names and self.q is None:
             raise ValueError("aero_load needs airspeed in the log")
-        evals0 = self.evaluations
-        fits = [self._fit_form(names, movers, forms, start, lin, max_evals, grid_for or names[-1])
+        return [partial(self._counted_fit_form, names, movers, forms, start, lin, max_evals, grid_for or names[-1])
                 for forms in itertools.product(*(forms_for(n, self.t, self.u) for n in movers))]
+
+    @staticmethod
+    def best_of(fits: list[Fit]) -> Fit:
+        """The form that fits the training blocks best (a supported one when there is); its ``evaluations``
+        are those of every form tried."""
         best = min([f for f in fits if form_supported(f)] or fits, key=lambda f: f.train_mse)
-        best.evaluations = self.evaluations - evals0
+        best.evaluations = sum(f.evaluations for f in fits)
         return best
+
+    def _counted_fit_form(self, *args) -> Fit:
+        evals0 = self._thread_evaluations()
+        f = self._fit_form(*args)
+        f.evaluations = self._thread_evaluations() - evals0
+        return f
 
     def _fit_form(self, names, movers, forms, start: Effects, lin, max_evals: int, grid_for: str) -> Fit:
         """``fit`` with one form per moving effect; the fields of a mover's other forms go back to the nominal's."""

@@ -48,6 +48,8 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -163,6 +165,7 @@ class DiagnoseOptions:
     joint_refits: int = 2  # candidates per round refitted jointly with the effects already chosen
     effects: tuple[str, ...] = EFFECT_NAMES  # the candidates
     use_model_error: bool = True  # apply the model-error model MODEL.json carries, if any
+    workers: int = 1  # threads fitting a round's candidates side by side (the verdict does not depend on it)
 
 
 @dataclass
@@ -256,6 +259,21 @@ class Explorer:
         self.rounds: dict[tuple[str, ...], list[Judged]] = {}
         self.fits: dict[tuple, Fit] = {(): nominal}
         self.neff_cache: dict[tuple[str, ...], float] = {}
+        self.pool: ThreadPoolExecutor | None = None  # set by ``threads`` for opt.workers > 1
+        self.speculative: dict[tuple, tuple[Fit, Fit]] = {}  # ``prefetch_without``'s: (cur, fit) by (key, id(cur))
+
+    @contextmanager
+    def threads(self):
+        """Fit on ``opt.workers`` threads inside this block."""
+        if self.opt.workers <= 1:
+            yield self
+            return
+        with ThreadPoolExecutor(self.opt.workers) as pool:
+            self.pool = pool
+            try:
+                yield self
+            finally:
+                self.pool = None
 
     def gain(self, old: Fit, new: Fit) -> PairedGain:
         return paired_gain(self.w - old.w_pred, self.w - new.w_pred, self.prob.split.chunks)
@@ -290,26 +308,21 @@ class Explorer:
         prob, opt = self.prob, self.opt
         remaining = [n for n in self.names if n not in selected]
         label = "round 1" if not selected else f"round {len(selected) + 1} (after {' + '.join(selected)})"
-        fits = {}
-        for i, c in enumerate(remaining):
-            if self.progress:
-                self.progress(label, i, len(remaining))
-            # screen with the chosen effects held (their linear parameters still move), then refit the most
-            # promising jointly: effects interact, and a chosen one may have soaked up part of the new one
-            fits[c] = prob.fit(selected + (c,), start=cur.effects, grid_for=c, free_nonlinear=(c,),
-                               max_evals=opt.max_evals)
+        # screen with the chosen effects held (their linear parameters still move), then refit the most
+        # promising jointly: effects interact, and a chosen one may have soaked up part of the new one
+        fits = self.each(label, {c: dict(names=selected + (c,), start=cur.effects, grid_for=c,
+                                         free_nonlinear=(c,), max_evals=opt.max_evals) for c in remaining})
         if selected:
             starts = {c: shared_latency_start(fits[c].effects, selected, c, self.base) for c in fits}
             top = sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]
             # a latency effect beside a chosen one is refitted from the shared split even when its screen
             # (at nothing, the chosen one carrying both) ranks it low
             top += [c for c in fits if c not in top and starts[c] is not fits[c].effects]
+            joint = self.each(f"{label}, joint refits", {c: dict(names=selected + (c,), start=starts[c], grid_for="",
+                                                                 max_evals=opt.max_evals) for c in top})
             for c in top:
-                f = prob.fit(selected + (c,), start=starts[c], grid_for="", max_evals=opt.max_evals)
-                if f.train_mse <= fits[c].train_mse:
-                    fits[c] = f
-        if self.progress:
-            self.progress(label, len(remaining), len(remaining))
+                if joint[c].train_mse <= fits[c].train_mse:
+                    fits[c] = joint[c]
         best_mse = min((f.score_mse for f in fits.values()), default=math.inf)
         best_fit = next((f for f in fits.values() if f.score_mse == best_mse), cur)
         neff = effective_n((self.w - best_fit.w_pred)[prob.split.score])
@@ -324,22 +337,67 @@ class Explorer:
         self.rounds[selected] = judged
         return judged
 
+    def each(self, label: str, jobs: dict[str, dict]) -> dict[str, Fit]:
+        """``prob.fit(**kwargs)`` for every job, each form of each on one of ``opt.workers`` threads (the fits
+        are independent and the compiled kernels release the GIL: the results are those of one after the
+        other)."""
+        plans = {c: self.prob.fit_jobs(**kw) for c, kw in jobs.items()}
+        flat = [job for plan in plans.values() for job in plan]
+        results = iter(self.run(flat, label))
+        return {c: self.prob.best_of([next(results) for _ in plan]) for c, plan in plans.items()}
+
+    def run(self, jobs: list[Callable[[], Fit]], label: str = "") -> list[Fit]:
+        """The results of argument-free jobs, in order: on the thread pool when there is one."""
+        n = len(jobs)
+        tell = self.progress if self.progress and label else (lambda *_: None)
+        tell(label, 0, n)
+        if self.pool is None or n <= 1:
+            out = []
+            for job in jobs:
+                out.append(job())
+                tell(label, len(out), n)
+            return out
+        futs = [self.pool.submit(job) for job in jobs]
+        for i, _ in enumerate(as_completed(futs)):
+            tell(label, i + 1, n)
+        return [f.result() for f in futs]
+
     def without(self, selected: tuple[str, ...], drop: str, cur: Fit) -> Fit:
         key = ("without", selected, drop)
         if key not in self.fits:
             rest = tuple(x for x in selected if x != drop)
             if self.progress:
                 self.progress("backward check", 0, 1)
-            self.fits[key] = self.prob.fit(rest, start=_neutral(cur.effects, drop, self.base), grid_for="",
-                                           max_evals=self.opt.max_evals)
+            spec = self.speculative.pop((key, id(cur)), None)
+            self.fits[key] = spec[1] if spec is not None and spec[0] is cur else \
+                self.prob.fit(rest, start=_neutral(cur.effects, drop, self.base), grid_for="",
+                              max_evals=self.opt.max_evals, run=self.run)
         return self.fits[key]
+
+    def prefetch_without(self, selected: tuple[str, ...], cur: Fit) -> None:
+        """Fit ``without(selected, s, cur)`` for every s side by side (on the thread pool), kept aside until
+        asked for with the same ``cur``: the backward pass asks for them one at a time and may stop early."""
+        if self.pool is None:
+            return
+        todo = [s for s in selected if ("without", selected, s) not in self.fits
+                and (("without", selected, s), id(cur)) not in self.speculative]
+        plans = {s: self.prob.fit_jobs(tuple(x for x in selected if x != s),
+                                       start=_neutral(cur.effects, s, self.base), grid_for="",
+                                       max_evals=self.opt.max_evals) for s in todo}
+        if self.progress and todo:
+            self.progress("backward check", 0, 1)
+        results = iter(self.run([job for plan in plans.values() for job in plan]))
+        for s, plan in plans.items():
+            self.speculative[(("without", selected, s), id(cur))] = (cur, self.prob.best_of([next(results)
+                                                                                           for _ in plan]))
 
     def final(self, selected: tuple[str, ...], cur: Fit) -> Fit:
         key = ("final", selected)
         if key not in self.fits:
             if self.progress:
                 self.progress("joint refit", 0, 1)
-            f = self.prob.fit(selected, start=cur.effects, grid_for="", max_evals=2 * self.opt.max_evals)
+            f = self.prob.fit(selected, start=cur.effects, grid_for="", max_evals=2 * self.opt.max_evals,
+                              run=self.run)
             self.fits[key] = f if f.train_mse <= cur.train_mse else cur
         return self.fits[key]
 
@@ -434,6 +492,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     changed = True
     while changed and len(sel) >= 2:
         changed = False
+        ex.prefetch_without(sel, cur)
         for s in sel:
             f = ex.without(sel, s, cur)
             g = ex.gain(f, cur)
@@ -546,16 +605,17 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     skipped = {n: why for n in opt.effects if n not in names}
     nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
     ex = Explorer(prob, names, base, nominal, floor2, opt, progress)
-    path = decide(ex, opt.decision, opt.max_effects)
     alternatives = []
-    for k, d in enumerate(opt.alternatives):
-        if progress:
-            progress("alternative decisions", k, len(opt.alternatives))
-        alt = path if d == opt.decision else decide(ex, d, opt.max_effects)
-        alternatives.append({"decision": d.to_dict(), "verdict": list(alt.selected),
-                             "effects": {n: alt.fit.values([n])[n] for n in alt.selected},
-                             "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
-                             "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
+    with ex.threads():
+        path = decide(ex, opt.decision, opt.max_effects)
+        for k, d in enumerate(opt.alternatives):
+            if progress:
+                progress("alternative decisions", k, len(opt.alternatives))
+            alt = path if d == opt.decision else decide(ex, d, opt.max_effects)
+            alternatives.append({"decision": d.to_dict(), "verdict": list(alt.selected),
+                                 "effects": {n: alt.fit.values([n])[n] for n in alt.selected},
+                                 "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
+                                 "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
     selected = list(path.selected)
     cur = path.fit
     rounds, ambiguities, chosen_conf = _main_rounds(ex, path, opt)

@@ -47,12 +47,15 @@ No I/O.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from warpbridge.model._jit import njit
 from warpbridge.model.effects import lagged, play
+
+_CACHE_LOCK = threading.Lock()  # guards every ErrorModel's input-terms cache
 
 FORMAT = "warpbridge-model-error/1"
 FEATURE_SETS = ("level", "branch", "transition", "rate", "memory", "play", "lag")  # nested: each adds to the previous
@@ -259,13 +262,15 @@ class ErrorModel:
         """``input_terms`` of x for this model's sets, kept for the last few paths (a fit that moves only the
         core runs the same x thousands of times)."""
         key = hash(x.tobytes())
-        hit = self._input_cache.get(key)
+        with _CACHE_LOCK:  # diagnose's candidate fits may share this model from several threads
+            hit = self._input_cache.get(key)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
         terms = input_terms(x, self.x_span, plays=len(self.sets) >= 6)
-        if len(self._input_cache) >= 4:
-            self._input_cache.pop(next(iter(self._input_cache)))
-        self._input_cache[key] = (x.copy(), terms)
+        with _CACHE_LOCK:
+            if len(self._input_cache) >= 4:
+                self._input_cache.pop(next(iter(self._input_cache)))
+            self._input_cache[key] = (x.copy(), terms)
         return terms
 
     def corrected(self, t, x, w, band: float = 1.0) -> np.ndarray:

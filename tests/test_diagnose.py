@@ -689,3 +689,38 @@ def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loa
     rows = {c["effect"]: c for c in moved.report["candidates"]}
     assert rows["aero_load"]["chosen"]["round"] == 1 and rows["aero_load"]["confidence"] > 0.9
     assert rows["friction"]["confidence"] == 0.0 and not rows["friction"]["in_verdict"]
+
+
+def _report_without_counts(d) -> str:
+    """The report as text, less the count of core runs (each thread keeps its own cache of them)."""
+    rep = {k: v for k, v in d.report.items() if k != "model_evaluations"}
+    return json.dumps(rep, sort_keys=True, default=str)
+
+
+def test_fitting_on_threads_gives_the_report_one_thread_gives():
+    """Two threads fit each round's candidates (and each form of friction) side by side and prefetch the
+    backward check: the verdict, every candidate's figures, the sensitivity's alternatives and the augmented
+    model are those of one thread. A pair on a bench with a model-error correction, so that the threads share
+    its cached input terms."""
+    mf = _bench_model(BENCH_LAG)
+    t, u, w, v = make_log(BENCH_LAG.merged(Effects(backlash_mm=0.25, drift_deg_s=0.01)), seed=34, duration=12.0)
+    runs = [diagnose(t, u, w, v, mf, DiagnoseOptions(workers=k, alternatives=DECISION_GRID[::12])) for k in (1, 2)]
+    assert sorted(runs[0].verdict) == ["backlash", "drift"]
+    assert _report_without_counts(runs[1]) == _report_without_counts(runs[0])
+    assert runs[1].model.effects == runs[0].model.effects
+    assert runs[1].report["model_evaluations"] > 0
+
+
+def test_the_command_fits_on_the_threads_asked_for_and_refuses_a_negative_count(tmp_path, capsys):
+    t, u, w, v = make_log(TRUE["backlash"][0], seed=35, duration=8.0)
+    write_csv_atomic(tmp_path / "log.csv", {"t": t, "u": u, "warp": w, "airspeed": v})
+    write_model(tmp_path / "model.json")
+    args = ["diagnose", str(tmp_path / "log.csv"), "--model", str(tmp_path / "model.json"), "--quiet"]
+    for jobs in ("1", "2"):
+        assert cli(args + ["--report", str(tmp_path / f"r{jobs}.json"), "--jobs", jobs]) == 0
+    reps = [json.loads((tmp_path / f"r{j}.json").read_text()) for j in ("1", "2")]
+    assert reps[0]["verdict"] == reps[1]["verdict"] == ["backlash"]
+    assert reps[0]["effects"] == reps[1]["effects"]
+    capsys.readouterr()
+    assert cli(args + ["--report", str(tmp_path / "r.json"), "--jobs", "-1"]) != 0
+    assert "--jobs" in _one_line_error(capsys)

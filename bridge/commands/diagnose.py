@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from datetime import UTC, datetime
@@ -42,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ignore the model-error model MODEL.json carries (judge the field against the bare model)")
     p.add_argument("--sensitivity", action="store_true",
                    help="also report the verdict under stricter and looser decision thresholds (slower)")
+    p.add_argument("--jobs", type=int, default=0,
+                   help="threads fitting the candidates side by side (default 0: the cores free now; the verdict "
+                        "is the same for any number)")
     p.add_argument("--quiet", action="store_true", help="no summary and no progress on the terminal, only the "
                                                       "file names")
 
@@ -57,9 +61,23 @@ def _options(args: argparse.Namespace) -> DiagnoseOptions:
         raise UserError(f"--max-effects must lie between 1 and {len(EFFECT_NAMES)}")
     if not 0 < args.alpha < 0.5:
         raise UserError("--alpha must lie between 0 and 0.5")
+    if args.jobs < 0:
+        raise UserError("--jobs must be 0 (the cores free now) or a number of threads")
     return DiagnoseOptions(max_effects=args.max_effects, decision=Decision(alpha=args.alpha), effects=names,
                            use_model_error=not args.no_model_error,
-                           alternatives=DECISION_GRID if args.sensitivity else ())
+                           alternatives=DECISION_GRID if args.sensitivity else (),
+                           workers=args.jobs or free_cores())
+
+
+def free_cores() -> int:
+    """Cores not busy now (the machine's count less its one-minute load average, at least 1): a companion
+    computer may be flying the bridge beside the diagnosis."""
+    n = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = 0.0
+    return max(1, min(n, int(n - load + 0.5)))
 
 
 class Progress:
