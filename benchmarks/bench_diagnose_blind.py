@@ -77,6 +77,7 @@ from plants import (  # noqa: E402
 )
 
 from warpbridge.bridge.cli import main as cli  # noqa: E402
+from warpbridge.bridge.commands.diagnose import free_cores  # noqa: E402
 from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic  # noqa: E402
 from warpbridge.model import excitation  # noqa: E402
 
@@ -337,20 +338,11 @@ def plant_job(family: str, seed: int, index: int, args) -> str:
     return plant.name
 
 
-def free_cores() -> int:
-    n = os.cpu_count() or 1
-    try:
-        load = os.getloadavg()[0]
-    except OSError:
-        load = 0.0
-    return max(1, int(n - load + 0.5))
-
-
 def run_all(jobs: list, fn, args, label: str, on_result=None) -> list:
     """Run ``fn(*job, args)`` for every job (in parallel when asked or when cores are free), handing each
     result to ``on_result`` as soon as it is there."""
     out = []
-    workers = args.jobs or min(free_cores(), os.cpu_count() or 1)
+    workers = args.jobs or free_cores()
     bar = None
     if sys.stderr.isatty():
         from tqdm import tqdm

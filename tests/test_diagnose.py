@@ -724,3 +724,17 @@ def test_the_command_fits_on_the_threads_asked_for_and_refuses_a_negative_count(
     capsys.readouterr()
     assert cli(args + ["--report", str(tmp_path / "r.json"), "--jobs", "-1"]) != 0
     assert "--jobs" in _one_line_error(capsys)
+
+
+def test_the_default_thread_count_leaves_the_busy_cores_alone(monkeypatch):
+    from warpbridge.bridge.commands import diagnose as command
+
+    monkeypatch.setattr(command.os, "cpu_count", lambda: 4)
+    for load, want in ((0.2, 4), (1.6, 2), (3.7, 1), (9.0, 1)):
+        monkeypatch.setattr(command.os, "getloadavg", lambda load=load: (load, load, load))
+        assert command.free_cores() == want
+
+    def unknown():
+        raise OSError("no load average here")
+    monkeypatch.setattr(command.os, "getloadavg", unknown)
+    assert command.free_cores() == 4
