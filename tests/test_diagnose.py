@@ -726,15 +726,29 @@ def test_the_command_fits_on_the_threads_asked_for_and_refuses_a_negative_count(
     assert "--jobs" in _one_line_error(capsys)
 
 
-def test_the_default_thread_count_leaves_the_busy_cores_alone(monkeypatch):
+def test_the_default_thread_count_leaves_the_busy_cores_alone(monkeypatch, tmp_path):
     from warpbridge.bridge.commands import diagnose as command
 
     monkeypatch.setattr(command.os, "cpu_count", lambda: 4)
+    # from the kernel's counters: 1000 ticks pass over the window, 620 of them idle or waiting: 2.48 cores idle
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  100 0 50 800 50 0 0 0 0 0\ncpu0 1 2 3 4 5 6 7 8 9 10\n")
+    monkeypatch.setattr(command.time, "sleep",
+                        lambda s: stat.write_text("cpu  400 10 120 1380 90 0 0 0 0 0\ncpu0 1 2 3 4 5 6 7 8 9 10\n"))
+    assert command.idle_cores(0.2, stat) == pytest.approx(2.48)
+    stat.write_text("intr 1 2 3\n")
+    assert command.idle_cores(0.2, stat) is None
+    assert command.idle_cores(0.2, tmp_path / "missing") is None
+    # where the counters cannot be read: the core count less the one-minute load average
+    monkeypatch.setattr(command, "idle_cores", lambda window_s: None)
     for load, want in ((0.2, 4), (1.6, 2), (3.7, 1), (9.0, 1)):
         monkeypatch.setattr(command.os, "getloadavg", lambda load=load: (load, load, load))
         assert command.free_cores() == want
+    monkeypatch.setattr(command, "idle_cores", lambda window_s: 2.48)
+    assert command.free_cores() == 2
 
     def unknown():
         raise OSError("no load average here")
+    monkeypatch.setattr(command, "idle_cores", lambda window_s: None)
     monkeypatch.setattr(command.os, "getloadavg", unknown)
     assert command.free_cores() == 4

@@ -69,15 +69,38 @@ def _options(args: argparse.Namespace) -> DiagnoseOptions:
                            workers=args.jobs or free_cores())
 
 
-def free_cores() -> int:
-    """Cores not busy now (the machine's count less its one-minute load average, at least 1): a companion
-    computer may be flying the bridge beside the diagnosis."""
+def free_cores(window_s: float = 0.2) -> int:
+    """Cores idle now, at least 1: a companion computer may be flying the bridge beside the diagnosis.
+    Measured from the kernel's CPU counters over ``window_s`` where there are any (Linux), else the core
+    count less the one-minute load average (which still counts a job that has just finished)."""
     n = os.cpu_count() or 1
-    try:
-        load = os.getloadavg()[0]
-    except OSError:
-        load = 0.0
-    return max(1, min(n, int(n - load + 0.5)))
+    idle = idle_cores(window_s)
+    if idle is None:
+        try:
+            idle = n - os.getloadavg()[0]
+        except OSError:
+            idle = float(n)
+    return max(1, min(n, int(idle + 0.5)))
+
+
+def idle_cores(window_s: float, stat: Path = Path("/proc/stat")) -> float | None:
+    """Cores' worth of idle time over the next ``window_s`` seconds from ``stat`` (None if unreadable)."""
+    def sample() -> tuple[int, int] | None:
+        try:
+            fields = stat.read_text().split("\n", 1)[0].split()
+        except OSError:
+            return None
+        if len(fields) < 5 or fields[0] != "cpu":
+            return None
+        ticks = [int(x) for x in fields[1:9]]  # user nice system idle iowait irq softirq steal
+        return ticks[3] + ticks[4], sum(ticks)
+
+    a = sample()
+    time.sleep(window_s)
+    b = sample()
+    if a is None or b is None or b[1] <= a[1]:
+        return None
+    return (b[0] - a[0]) / (b[1] - a[1]) * (os.cpu_count() or 1)
 
 
 class Progress:
