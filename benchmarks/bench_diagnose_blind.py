@@ -266,7 +266,7 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
     write_log(check_csv, chk)
     write_log(check0_csv, chk0)
     report = work / f"{tag}-report.json"
-    threads = getattr(args, "threads", 1)
+    threads = args.threads
     t0 = time.perf_counter()
     code, text = run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(report),
                           "--sensitivity", "--quiet", "--jobs", str(threads)])

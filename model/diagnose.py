@@ -260,7 +260,7 @@ class Explorer:
         self.fits: dict[tuple, Fit] = {(): nominal}
         self.neff_cache: dict[tuple[str, ...], float] = {}
         self.pool: ThreadPoolExecutor | None = None  # set by ``threads`` for opt.workers > 1
-        self.speculative: dict[tuple, tuple[Fit, Fit]] = {}  # ``prefetch_without``'s: (cur, fit) by (key, id(cur))
+        self.speculative: dict[tuple, tuple[Fit, Fit]] = {}  # ``prefetch_without``'s (cur, fit) by ``without``'s key
 
     @contextmanager
     def threads(self):
@@ -365,14 +365,17 @@ class Explorer:
     def without(self, selected: tuple[str, ...], drop: str, cur: Fit) -> Fit:
         key = ("without", selected, drop)
         if key not in self.fits:
-            rest = tuple(x for x in selected if x != drop)
             if self.progress:
                 self.progress("backward check", 0, 1)
-            spec = self.speculative.pop((key, id(cur)), None)
-            self.fits[key] = spec[1] if spec is not None and spec[0] is cur else \
-                self.prob.fit(rest, start=_neutral(cur.effects, drop, self.base), grid_for="",
-                              max_evals=self.opt.max_evals, run=self.run)
+            kept, fit = self.speculative.pop(key, (None, None))
+            self.fits[key] = fit if kept is cur else self.prob.fit(**self._without_job(selected, drop, cur),
+                                                                   run=self.run)
         return self.fits[key]
+
+    def _without_job(self, selected: tuple[str, ...], drop: str, cur: Fit) -> dict:
+        """``prob.fit``'s arguments for ``selected`` less ``drop``, started from ``cur`` with ``drop`` neutral."""
+        return dict(names=tuple(x for x in selected if x != drop), start=_neutral(cur.effects, drop, self.base),
+                    grid_for="", max_evals=self.opt.max_evals)
 
     def prefetch_without(self, selected: tuple[str, ...], cur: Fit) -> None:
         """Fit ``without(selected, s, cur)`` for every s side by side (on the thread pool), kept aside until
@@ -380,16 +383,11 @@ class Explorer:
         if self.pool is None:
             return
         todo = [s for s in selected if ("without", selected, s) not in self.fits
-                and (("without", selected, s), id(cur)) not in self.speculative]
-        plans = {s: self.prob.fit_jobs(tuple(x for x in selected if x != s),
-                                       start=_neutral(cur.effects, s, self.base), grid_for="",
-                                       max_evals=self.opt.max_evals) for s in todo}
-        if self.progress and todo:
-            self.progress("backward check", 0, 1)
-        results = iter(self.run([job for plan in plans.values() for job in plan]))
-        for s, plan in plans.items():
-            self.speculative[(("without", selected, s), id(cur))] = (cur, self.prob.best_of([next(results)
-                                                                                           for _ in plan]))
+                and self.speculative.get(("without", selected, s), (None,))[0] is not cur]
+        fits = self.each("backward check" if todo else "",
+                         {s: self._without_job(selected, s, cur) for s in todo})
+        for s, f in fits.items():
+            self.speculative[("without", selected, s)] = (cur, f)
 
     def final(self, selected: tuple[str, ...], cur: Fit) -> Fit:
         key = ("final", selected)
