@@ -1,12 +1,15 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
-    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms] [--threads 2] [--seed 2]
+    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel] [--threads 2] [--seed 2]
                                              [--cases 10,12] [--repeats 1] [--cache DIR]
 
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
 by side) against ``--threads`` threads (``--jobs N``; the command's default is the cores free at its start).
 ``--compare input-terms``: the model-error correction's input terms reused (as shipped) against recomputed at
-every evaluation (the code before they were cached), both on one thread.
+every evaluation (the code before they were cached), both on one thread. ``--compare band-travel``: the
+correction's loop-shape terms stretched in travel with a friction band (as shipped: their input terms computed
+again for every band a fit tries) against kept on the bench's travel scale (the code before; their height
+still scales), both on one thread; the verdicts are compared, the reports differ by design.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant 0 of each family at ``--seed``, the case
 numbers given; 10-12 are its pairs, the slowest), the bench models from its cache (identified there when
@@ -40,9 +43,18 @@ from warpbridge.model import model_error  # noqa: E402
 FAMILIES = ("bouc-wen", "bouc-wen-phys", "dahl", "prandtl-ishlinskii", "sheath")
 
 
-def _recomputed(self, x: np.ndarray) -> tuple:
+def _recomputed(self, x: np.ndarray, band: float = 1.0) -> tuple:
     """The baseline: the input terms computed afresh at every call."""
-    return model_error.input_terms(x, self.x_span, plays=len(self.sets) >= 6)
+    return model_error.input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
+
+
+_SHIPPED_INPUT_TERMS = model_error.ErrorModel._input_terms
+
+
+def _bench_travel(self, x: np.ndarray, band: float = 1.0) -> tuple:
+    """The baseline of ``--compare band-travel``: the input terms on the bench's travel scale at any band,
+    kept per path (the code before the loop-shape terms were stretched with the band)."""
+    return _SHIPPED_INPUT_TERMS(self, x, 1.0)
 
 
 def _strip(report: dict) -> dict:
@@ -56,6 +68,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     jobs = threads if compare == "threads" and new else 1
     if compare == "input-terms" and not new:
         model_error.ErrorModel._input_terms = _recomputed
+    if compare == "band-travel" and not new:
+        model_error.ErrorModel._input_terms = _bench_travel
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -70,9 +84,10 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--compare", choices=("threads", "input-terms"), default="threads",
+    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel"), default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
-                         "against recomputed")
+                         "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
+                         "against kept on the bench's travel scale")
     ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
@@ -83,14 +98,18 @@ def main(argv: list[str] | None = None) -> int:
                               duration=blind.FIELD_S, timing_every=1)
     cases = [int(c) for c in a.cases.split(",")]
     rows = []
-    base_name, new_name = (("1 thread", f"{a.threads} threads") if a.compare == "threads"
-                           else ("recomputed", "reused"))
-    what = (f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})" if a.compare == "threads"
-            else "input terms reused (shipped) vs recomputed (baseline), one thread")
+    base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
+                           "band-travel": ("bench travel", "stretched")}[a.compare]
+    what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
+            "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
+            "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
+                           "scale (baseline), one thread"}[a.compare]
+    by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
+    same_what = "same verdict" if by_verdict else "same report"
     print(f"diagnose, 60 s at 500 Hz: {what}; seed {a.seed}, plant 0 of each family, cases {a.cases}, "
           f"{a.repeats} repeat(s); load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
           flush=True)
-    print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  same report",
+    print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  {same_what}",
           flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -109,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                     got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads)
                            for v in order}
                     (tb, rb), (tr, rr) = got[False], got[True]
-                    same = rb == rr
+                    same = rb["verdict"] == rr["verdict"] if by_verdict else rb == rr
                     rows.append((tb, tr, same))
                     print(f"{plant.name + f'-c{k}':<28}{'+'.join(names):<26}{tb:>13.1f}{tr:>13.1f}{tr / tb:>7.2f}  "
                           f"{'yes' if same else 'NO'}", flush=True)
@@ -118,8 +137,9 @@ def main(argv: list[str] | None = None) -> int:
           f"(range {min(ratios):.2f}-{max(ratios):.2f}); median: {base_name} "
           f"{statistics.median(r[0] for r in rows):.1f} s, {new_name} {statistics.median(r[1] for r in rows):.1f} s; "
           f"slowest: {base_name} {max(r[0] for r in rows):.1f} s, {new_name} {max(r[1] for r in rows):.1f} s; "
-          f"reports identical {sum(r[2] for r in rows)}/{len(rows)}; load average at the end {os.getloadavg()[0]:.1f}")
-    return 0 if all(r[2] for r in rows) else 1
+          f"{'verdicts' if by_verdict else 'reports'} identical {sum(r[2] for r in rows)}/{len(rows)}; "
+          f"load average at the end {os.getloadavg()[0]:.1f}")
+    return 0 if by_verdict or all(r[2] for r in rows) else 1
 
 
 if __name__ == "__main__":

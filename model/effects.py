@@ -36,7 +36,8 @@ capstan sheath's pull and release branches sit unequally about the
 frictionless line, so a friction change that keeps the middle would leave an
 offset that a pre-tension change would have to explain. A model-error
 correction learned on the bench (``model.model_error``) scales its loop-shape
-terms with the band too (``Effects.band_scale``).
+terms with the band too (``Effects.band_scale``), in height and in travel, as
+the band itself scales: z(u) -> s z(u / s).
 
 A sheath with capstan friction has a second form of a friction change: after
 a reversal the far end stalls until the reversed slip has run along the whole

@@ -36,11 +36,16 @@ RMS after the correction is what the model is still known to get wrong.
 ``diagnose`` adds the correction to the model's core output, so that an
 effect is named by what changed between bench and field, not by what the
 model never captured. The loop-shape terms (branch, transition, memory,
-play) describe a misfit of the hysteresis band, so they scale with the band
-the core runs with: a friction change that scales the band by s
-(``Effects.band_scale``) scales them by s, as a wing whose friction halves
-also halves the part of its loop the model got wrong; the level, rate and
-lag terms (the backbone and the dynamics) stay. Units: t s, x mm (tendon travel into the core), w deg.
+play) describe a misfit of the hysteresis band, so they follow the band the
+core runs with. A friction change that scales the band by s
+(``Effects.band_scale``) scales the loop self-similarly, z(u) -> s z(u / s)
+(``model.effects.friction_core``): the turn after a reversal is s times as
+tall and takes s times the travel. The loop-shape terms do the same: their
+amplitude is scaled by s and their travel lengths (transition lengths, the
+previous leg, the play thresholds, the reversal dead band) by s, as a wing
+whose friction halves also halves the part of its loop the model got wrong,
+over half the travel. The level, rate and lag terms (the backbone and the
+dynamics) stay. Units: t s, x mm (tendon travel into the core), w deg.
 No I/O.
 """
 
@@ -246,27 +251,31 @@ class ErrorModel:
 
     def correction(self, t, x, w, band: float = 1.0) -> np.ndarray:
         """Warp (deg) to add to the model's core output along input x and model warp w (one compiled pass,
-        the same as ``features(t, x, w) @ theta`` with the loop-shape columns times ``band``, the scale of
-        the hysteresis band the core runs with: ``Effects.band_scale``)."""
+        the same as ``features(t, x, w) @ theta`` at band 1). ``band`` is the scale of the hysteresis band
+        the core runs with (``Effects.band_scale``): the loop-shape columns are taken ``band`` times as
+        large, along a travel scale ``band`` times as long (the module docstring)."""
+        if not (band > 0 and math.isfinite(band)):
+            raise ValueError(f"band scale must be positive and finite, got {band}")
         w = np.ascontiguousarray(w, dtype=np.float64)
         if self.theta.size == 0:
             return np.zeros(w.size)
         nsets = len(self.sets)
         t = np.ascontiguousarray(t, dtype=np.float64)
         v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
-        dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64))
+        dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64), band)
         g = lag_states(t, w, self.rate_scale) if nsets >= 7 else np.zeros((w.size, 0))
         return _correction(w, v, q, g, self.theta, self.w_center, self.w_scale, nsets, dirs, et, em, legs, band)
 
-    def _input_terms(self, x: np.ndarray) -> tuple:
-        """``input_terms`` of x for this model's sets, kept for the last few paths (a fit that moves only the
-        core runs the same x thousands of times)."""
-        key = hash(x.tobytes())
+    def _input_terms(self, x: np.ndarray, band: float = 1.0) -> tuple:
+        """``input_terms`` of x for this model's sets with the travel scale stretched by the band (a friction
+        change scales the loop self-similarly: the turn after a reversal takes ``band`` times the travel),
+        kept for the last few paths (a fit that moves only the core runs the same x thousands of times)."""
+        key = (hash(x.tobytes()), band)
         with _CACHE_LOCK:  # diagnose's candidate fits may share this model from several threads
             hit = self._input_cache.get(key)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
-        terms = input_terms(x, self.x_span, plays=len(self.sets) >= 6)
+        terms = input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
         with _CACHE_LOCK:
             if len(self._input_cache) >= 4:
                 self._input_cache.pop(next(iter(self._input_cache)))

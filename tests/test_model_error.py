@@ -163,14 +163,44 @@ def test_the_input_terms_reused_across_paths_give_each_path_its_own_correction()
 LOOP_SHAPE_SETS = ("branch", "transition", "memory", "play")  # a misfit of the band; level, rate, lag are not
 
 
-@pytest.mark.parametrize("band", [0.0, 0.4, 1.7])
-def test_the_loop_shape_terms_scale_with_the_band_and_the_rest_stays(band):
+@pytest.mark.parametrize("band", [0.4, 1.0, 1.7])
+def test_the_loop_shape_terms_scale_with_the_band_in_height_and_travel_and_the_rest_stays(band):
+    # the band scaled by s scales the loop self-similarly, z(u) -> s z(u / s): the loop-shape columns are
+    # the bench's features on a travel scale s times as long, s times as large; level, rate and lag stay
     t, u, w = _log(seed=14)
     span = float(np.ptp(u))
     X = design(t, u, w, 6.0, 4.0, span, 25.0, FEATURE_SETS)
+    Xs = design(t, u, w, 6.0, 4.0, span * band, 25.0, FEATURE_SETS)
     em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, np.random.default_rng(15).standard_normal(X.shape[1]))
-    scale = np.concatenate([np.full(SET_COLUMNS[s], band if s in LOOP_SHAPE_SETS else 1.0) for s in FEATURE_SETS])
-    np.testing.assert_allclose(em.correction(t, u, w, band), X @ (scale * em.theta), rtol=0, atol=1e-10)
+    loop = np.concatenate([np.full(SET_COLUMNS[s], s in LOOP_SHAPE_SETS) for s in FEATURE_SETS])
+    expect = X[:, ~loop] @ em.theta[~loop] + band * (Xs[:, loop] @ em.theta[loop])
+    np.testing.assert_allclose(em.correction(t, u, w, band), expect, rtol=0, atol=1e-10)
+    if band != 1.0:  # the travel scale does move the loop-shape part: not the amplitude alone
+        assert np.max(np.abs(Xs[:, loop] - X[:, loop])) > 0.1
+
+
+@pytest.mark.parametrize("band", [0.5, 2.0])
+def test_the_loop_shape_correction_of_a_scaled_band_is_the_bench_one_on_the_travel_shrunk_by_it(band):
+    # the self-similarity itself: along travel x with the band scaled by s, the loop-shape correction is s
+    # times the bench's (band 1) along x / s
+    t, u, w = _log(seed=18)
+    span = float(np.ptp(u))
+    X = design(t, u, w, 6.0, 4.0, span, 25.0, FEATURE_SETS)
+    loop = np.concatenate([np.full(SET_COLUMNS[s], s in LOOP_SHAPE_SETS) for s in FEATURE_SETS])
+    theta = np.where(loop, np.random.default_rng(19).standard_normal(X.shape[1]), 0.0)
+    em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, theta)
+    np.testing.assert_allclose(em.correction(t, u, w, band), band * em.correction(t, u / band, w, 1.0),
+                               rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("band", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_band_scale_that_is_not_positive_and_finite_is_refused(band):
+    t, u, w = _log(seed=20)
+    span = float(np.ptp(u))
+    em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, np.ones(design(t, u, w, 6.0, 4.0, span, 25.0,
+                                                                       FEATURE_SETS).shape[1]))
+    with pytest.raises(ValueError, match="band scale"):
+        em.correction(t, u, w, band)
 
 
 def test_the_plant_runs_the_correction_with_its_friction_band():
