@@ -268,14 +268,18 @@ class ErrorModel:
 
     def _input_terms(self, x: np.ndarray, band: float = 1.0) -> tuple:
         """``input_terms`` of x for this model's sets with the travel scale stretched by the band (a friction
-        change scales the loop self-similarly: the turn after a reversal takes ``band`` times the travel),
-        kept for the last few paths (a fit that moves only the core runs the same x thousands of times)."""
-        key = (hash(x.tobytes()), band)
+        change scales the loop self-similarly: the turn after a reversal takes ``band`` times the travel).
+        Those on the bench's travel scale (band 1) are kept for the last few paths: a fit that moves only the
+        core runs the same x thousands of times, while a friction fit tries a new band at every run (kept,
+        those would only push the reused paths out)."""
+        if band != 1.0:
+            return input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
+        key = hash(x.tobytes())
         with _CACHE_LOCK:  # diagnose's candidate fits may share this model from several threads
             hit = self._input_cache.get(key)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
-        terms = input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
+        terms = input_terms(x, self.x_span, plays=len(self.sets) >= 6)
         with _CACHE_LOCK:
             if len(self._input_cache) >= 4:
                 self._input_cache.pop(next(iter(self._input_cache)))
