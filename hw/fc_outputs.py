@@ -17,7 +17,10 @@ Sends COMMAND_LONG through a pymavlink connection handed in (anything with
 Pulses are clamped to the channel's safe range, and a command is only sent when the
 pulse moved by at least 1 us since the last one sent, or ``keepalive_s`` has passed.
 Feed the FC's COMMAND_ACK messages to ``handle_ack`` to have refusals reported by
-``poll_errors`` (bit n set = MAV_RESULT n).
+``poll_errors`` (bit n set = MAV_RESULT n). A refused output is refused again at every
+command, so at least once per keep-alive; ``poll_errors`` holds a refusal for
+``ERROR_HOLD_KEEPALIVES`` keep-alive periods, so that a poll that falls between two refusals
+(or runs late on a busy computer) does not read the episode as over.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ log = logging.getLogger(__name__)
 AUTOPILOTS = ("ardupilot", "px4")
 MIN_CHANGE_US = 1.0
 PX4_ACTUATOR_SETS = 6
+ERROR_HOLD_KEEPALIVES = 2.5  # a refusal counts as current this many keep-alive periods after it came
 
 
 def _command_sender(connection: Any) -> Any:
@@ -85,7 +89,7 @@ class FcOutputs:
         self.keepalive_s = keepalive_s
         self._clock = clock
         self._sent: dict[int, tuple[float, float]] = {}  # channel -> (pulse, time) last sent
-        self._errors = 0
+        self._refused: dict[int, float] = {}  # MAV_RESULT -> time of its latest refusal
         self.commands_sent = 0
 
     def _check_channel(self, channel: int) -> None:
@@ -139,13 +143,18 @@ class FcOutputs:
         if msg.command not in (mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_ACTUATOR):
             return
         if msg.result not in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
-            if not self._errors & (1 << msg.result):
+            if msg.result not in self._refused:
                 log.warning("fc outputs: FC refused command %d: result %d", msg.command, msg.result)
-            self._errors |= 1 << msg.result
+            self._refused[msg.result] = self._clock()
 
     def poll_errors(self) -> int:
-        """Bits ``1 << MAV_RESULT`` of refused commands since the last poll."""
-        bits, self._errors = self._errors, 0
+        """Bits ``1 << MAV_RESULT`` of the refusals of the last ``ERROR_HOLD_KEEPALIVES`` keep-alive periods."""
+        now = self._clock()
+        hold = ERROR_HOLD_KEEPALIVES * self.keepalive_s
+        self._refused = {r: t for r, t in self._refused.items() if now - t <= hold}
+        bits = 0
+        for r in self._refused:
+            bits |= 1 << r
         return bits
 
     def error_names(self, bits: int) -> list[str]:

@@ -100,6 +100,24 @@ def test_refusals_from_command_ack_are_reported(conn, clock):
     bits = out.poll_errors()
     assert bits == 1 << mavlink.MAV_RESULT_FAILED
     assert out.error_names(bits) == ["MAV_RESULT_FAILED"]
+    clock[0] += 2.0  # no refusal since: a poll between two keep-alive refusals still reads it
+    assert out.poll_errors() == bits
+    clock[0] += 1.0  # 3 keep-alive periods without a refusal: the episode is over
+    assert out.poll_errors() == 0
+
+
+def test_a_refusal_at_every_keepalive_is_one_unbroken_episode(conn, clock):
+    out = ardupilot(conn, clock)
+    refused = mavlink.MAVLink_command_ack_message(mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_RESULT_DENIED)
+    polls = []
+    for k in range(40):  # refusals each keep-alive (1 s), polls every 0.7 s, late or early against them
+        if k % 10 == 0:
+            out.handle_ack(refused)
+        if k % 7 == 3:
+            polls.append(out.poll_errors())
+        clock[0] += 0.1
+    assert polls and all(b == 1 << mavlink.MAV_RESULT_DENIED for b in polls)
+    clock[0] += 2.6
     assert out.poll_errors() == 0
 
 
