@@ -152,10 +152,7 @@ class FcOutputs:
         now = self._clock()
         hold = ERROR_HOLD_KEEPALIVES * self.keepalive_s
         self._refused = {r: t for r, t in self._refused.items() if now - t <= hold}
-        bits = 0
-        for r in self._refused:
-            bits |= 1 << r
-        return bits
+        return sum(1 << r for r in self._refused)
 
     def error_names(self, bits: int) -> list[str]:
         """MAV_RESULT names of the set bits."""
