@@ -3,6 +3,7 @@ leave-one-family-out on logs the diagnosis never saw.
 
     python benchmarks/bench_diagnose_blind.py [--family F,...] [--seed 0,1] [--plants 3] [--pairs 3]
                                               [--nones 2] [--quick] [--jobs N] [--cache DIR] [--report-only]
+                                              [--choose-on-seed 0,1,2]
 
 Plants (``benchmarks/plants.py``; truth side in ``truth_chain.py``,
 ``truth_cores.py`` and the sheath of ``sitl/sheath.py``, none of which imports
@@ -30,7 +31,9 @@ on real files.
 Leave-one-family-out: ``diagnose --sensitivity`` reports the verdict under
 each decision of a small grid (significance level, share of the remaining gap,
 material gain); for each held-out family the decision is chosen on the other
-families and the held-out family is scored with it (``blind_lofo.py``).
+families and the held-out family is scored with it (``blind_lofo.py``). With
+``--choose-on-seed``, on the other families of those seeds: the seeds scored
+(a fresh one) are then held out as well as the family.
 
 The expensive parts are cached under ``--cache`` (default: the user's cache
 folder, outside the repository): the identified bench model per plant (keyed
@@ -376,6 +379,37 @@ def _tick(bar, label: str, i: int, n: int, res) -> None:
         print(f"[{i}/{n}] {label}: {res}", flush=True)
 
 
+def case_list(seeds: list[int], families: list[str], args: argparse.Namespace) -> list[tuple]:
+    """Every case of those seeds and families: (family, seed, plant index, case index, effect names, specs)."""
+    return [(fam, seed, i, k, list(names), cs) for seed in seeds for fam in families for i in range(args.plants)
+            for k, (names, cs) in enumerate(draw_cases(seed, fam, i, args.nones, args.pairs))]
+
+
+def cached_results(cases: list[tuple], res_dir: Path) -> tuple[list[dict], list[tuple]]:
+    """(the cached results of these cases, the cases not in the cache)."""
+    results, todo = [], []
+    for c in cases:
+        f = res_dir / f"{c[0]}-s{c[1]}-p{c[2]}-c{c[3]}.json"
+        if f.is_file():
+            results.append(json.loads(f.read_text()))
+        else:
+            todo.append(c)
+    return results, todo
+
+
+def choice_pool(args: argparse.Namespace, families: list[str], res_dir: Path) -> tuple[list[dict] | None, str]:
+    """The cached results of ``--choose-on-seed`` (every case of those seeds, or exit saying which to run), and
+    the phrase the fold table's heading gets; (None, "") without the option."""
+    seeds = [int(s) for s in args.choose_on_seed.split(",") if s.strip()]
+    if not seeds:
+        return None, ""
+    pool, missing = cached_results(case_list(seeds, families, args), res_dir)
+    if missing:
+        sys.exit(f"--choose-on-seed {args.choose_on_seed}: {len(missing)} of {len(missing) + len(pool)} cases are "
+                 f"not in the cache; run `--seed {args.choose_on_seed}` with the same options first")
+    return pool, f" of seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--family", default=",".join(FAMILIES), help=f"families (default: all of {', '.join(FAMILIES)})")
@@ -394,6 +428,9 @@ def main() -> None:
                     help="time a plain diagnose (no --sensitivity) on every n-th case (default 4)")
     ap.add_argument("--cache", type=Path, default=default_cache(), help="cache folder (outside the repository)")
     ap.add_argument("--report-only", action="store_true", help="print the tables from the cached results")
+    ap.add_argument("--choose-on-seed", default="",
+                    help="choose each fold's decision on the other families of these seeds (cached: run them "
+                         "first), so the seeds scored are held out as well as the family")
     args = ap.parse_args()
     if args.quick:
         args.plants, args.pairs, args.nones = 1, 1, 1
@@ -408,21 +445,9 @@ def main() -> None:
     res_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
 
-    cases = []
-    plants = []
-    for seed in seeds:
-        for fam in families:
-            for i in range(args.plants):
-                plants.append((fam, seed, i))
-                for k, (names, cs) in enumerate(draw_cases(seed, fam, i, args.nones, args.pairs)):
-                    cases.append((fam, seed, i, k, list(names), cs))
-    results, todo = [], []
-    for c in cases:
-        f = res_dir / f"{c[0]}-s{c[1]}-p{c[2]}-c{c[3]}.json"
-        if f.is_file():
-            results.append(json.loads(f.read_text()))
-        else:
-            todo.append(c)
+    cases = case_list(seeds, families, args)
+    plants = sorted({(c[0], c[1], c[2]) for c in cases})
+    results, todo = cached_results(cases, res_dir)
     if todo and not args.report_only:
         print(f"{len(cases)} cases ({len(results)} cached), {len(plants)} plants; cache {args.cache}", flush=True)
         need = sorted({(c[0], c[1], c[2]) for c in todo})
@@ -437,11 +462,12 @@ def main() -> None:
         print("no results")
         return
     default = results[0]["default_decision"]
-    folds = blind_lofo.lofo(results, default)
+    pool, chosen_on = choice_pool(args, families, res_dir)
+    folds = blind_lofo.lofo(results, default, pool)
     print()
     print(f"blind diagnosis benchmark: {len(results)} cases, families {', '.join(sorted(folds))}, "
           f"seeds {', '.join(map(str, seeds))}; field logs {args.duration:g} s at {args.rate:g} Hz")
-    print("\nleave-one-family-out: the decision for each family is chosen on the others")
+    print(f"\nleave-one-family-out: the decision for each family is chosen on the others{chosen_on}")
     print(blind_lofo.fold_table(folds, seeds))
     print()
     print(blind_lofo.pooled_table(folds, seeds))
@@ -457,7 +483,7 @@ def main() -> None:
     print(blind_lofo.switch_table(folds))
     print("\nclose calls (each fold's decision and the best-scoring other one, on the other families, that gives its "
           "family a different result)")
-    print(blind_lofo.close_calls(results, folds))
+    print(blind_lofo.close_calls(results, folds, pool))
     print("\neffects named beside an aero load, their held-out gain split by airspeed (fastest third of the log / "
           "slowest; such an effect goes to the load when the ratio exceeds the dynamic pressure's)")
     print(blind_lofo.aero_split_table(results, folds))

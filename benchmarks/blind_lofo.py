@@ -78,13 +78,16 @@ def choose(results: list[dict], decisions: list[str], default: str) -> str:
     return best
 
 
-def lofo(results: list[dict], default: str) -> dict:
-    """{family: (decision chosen without it, its results)} for every family in the results."""
+def lofo(results: list[dict], default: str, pool: list[dict] | None = None) -> dict:
+    """{family: (decision chosen without it, its results)} for every family in the results. The decision is
+    chosen on the other families of ``pool`` (default: the results themselves); a pool of other seeds holds
+    each family out and the scored seeds out as well."""
+    pool = results if pool is None else pool
     families = sorted({r["family"] for r in results})
-    decisions = sorted({dk for r in results for dk in r["by_decision"]})
+    decisions = sorted({dk for r in pool for dk in r["by_decision"]})
     out = {}
     for fam in families:
-        train = [r for r in results if r["family"] != fam]
+        train = [r for r in pool if r["family"] != fam]
         dk = choose(train, decisions, default) if train else default
         out[fam] = (dk, [r for r in results if r["family"] == fam])
     return out
@@ -318,11 +321,12 @@ def switch_table(folds: dict) -> str:
     return "\n".join(lines)
 
 
-def close_calls(results: list[dict], folds: dict) -> str:
-    """Per fold: the decision chosen and the best-scoring other decision on the same training families that
-    scores the held-out family differently (singles / pairs / false alarms, training and held out): how
-    near the choice was."""
-    decisions = sorted({dk for r in results for dk in r["by_decision"]})
+def close_calls(results: list[dict], folds: dict, pool: list[dict] | None = None) -> str:
+    """Per fold: the decision chosen and the best-scoring other decision on the same training families (of
+    ``pool``, as ``lofo`` was given) that scores the held-out family differently (singles / pairs / false
+    alarms, training and held out): how near the choice was."""
+    pool = results if pool is None else pool
+    decisions = sorted({dk for r in pool for dk in r["by_decision"]})
     lines = [f"{'held-out family':<20} {'':<10} {'decision':<44} {'others: s/p/fa':>16} {'held out: s/p/fa':>17}"]
 
     def counts(rs: list[dict], dk: str) -> tuple[int, int, int]:
@@ -330,7 +334,7 @@ def close_calls(results: list[dict], folds: dict) -> str:
         return rt["single_ok"], rt["pair_ok"], rt["false_alarms"]
 
     for fam, (dk, rs) in folds.items():
-        train = [r for r in results if r["family"] != fam]
+        train = [r for r in pool if r["family"] != fam]
         chosen = counts(rs, dk)
         ranked = sorted((d for d in decisions if d != dk), key=lambda d: -score(rates(train, d)))
         alt = next((d for d in ranked if counts(rs, d) != chosen), None)
