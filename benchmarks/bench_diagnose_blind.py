@@ -448,6 +448,7 @@ def main() -> None:
     cases = case_list(seeds, families, args)
     plants = sorted({(c[0], c[1], c[2]) for c in cases})
     results, todo = cached_results(cases, res_dir)
+    pool, chosen_on = choice_pool(args, families, res_dir)  # before the run: a missing seed is said at once
     if todo and not args.report_only:
         print(f"{len(cases)} cases ({len(results)} cached), {len(plants)} plants; cache {args.cache}", flush=True)
         need = sorted({(c[0], c[1], c[2]) for c in todo})
@@ -462,7 +463,6 @@ def main() -> None:
         print("no results")
         return
     default = results[0]["default_decision"]
-    pool, chosen_on = choice_pool(args, families, res_dir)
     folds = blind_lofo.lofo(results, default, pool)
     print()
     print(f"blind diagnosis benchmark: {len(results)} cases, families {', '.join(sorted(folds))}, "

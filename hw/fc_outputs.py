@@ -143,16 +143,20 @@ class FcOutputs:
         if msg.command not in (mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_ACTUATOR):
             return
         if msg.result not in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
-            if msg.result not in self._refused:
+            now = self._clock()
+            if msg.result not in self._current(now):
                 log.warning("fc outputs: FC refused command %d: result %d", msg.command, msg.result)
-            self._refused[msg.result] = self._clock()
+            self._refused[msg.result] = now
+
+    def _current(self, now: float) -> dict[int, float]:
+        """The refusals of the last ``ERROR_HOLD_KEEPALIVES`` keep-alive periods (older ones dropped)."""
+        hold = ERROR_HOLD_KEEPALIVES * self.keepalive_s
+        self._refused = {r: t for r, t in self._refused.items() if now - t <= hold}
+        return self._refused
 
     def poll_errors(self) -> int:
         """Bits ``1 << MAV_RESULT`` of the refusals of the last ``ERROR_HOLD_KEEPALIVES`` keep-alive periods."""
-        now = self._clock()
-        hold = ERROR_HOLD_KEEPALIVES * self.keepalive_s
-        self._refused = {r: t for r, t in self._refused.items() if now - t <= hold}
-        return sum(1 << r for r in self._refused)
+        return sum(1 << r for r in self._current(self._clock()))
 
     def error_names(self, bits: int) -> list[str]:
         """MAV_RESULT names of the set bits."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 from types import SimpleNamespace
 
@@ -165,3 +166,16 @@ def test_command_long_arrives_over_a_real_pymavlink_link():
     finally:
         bridge.close()
         fc.close()
+
+
+def test_a_refusal_after_the_episode_ended_is_logged_again_without_a_poll(conn, clock, caplog):
+    out = ardupilot(conn, clock)
+    refused = mavlink.MAVLink_command_ack_message(mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_RESULT_DENIED)
+    with caplog.at_level(logging.WARNING, logger="warpbridge.hw.fc_outputs"):
+        out.handle_ack(refused)
+        clock[0] += 1.0
+        out.handle_ack(refused)  # the same episode: not logged again
+        clock[0] += 3.0  # more than 2.5 keep-alive periods without a refusal, and no poll in between
+        out.handle_ack(refused)
+    assert sum("FC refused" in r.getMessage() for r in caplog.records) == 2
+    assert out.poll_errors() == 1 << mavlink.MAV_RESULT_DENIED
