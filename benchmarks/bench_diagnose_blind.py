@@ -410,6 +410,19 @@ def choice_pool(args: argparse.Namespace, families: list[str], res_dir: Path) ->
     return pool, f" of seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}"
 
 
+def plant_notes(results: list[dict]) -> dict[str, str]:
+    """A word on each plant drawn again from its seed: a sheath's capstan wrap mu x bend and the tension ratio
+    e^(mu x bend) across it (the friction's reach: the band's width and how much one Bouc-Wen state must hold)."""
+    notes = {}
+    for fam, seed in sorted({(r["family"], r["seed"]) for r in results if r["family"] == "sheath"}):
+        count = 1 + max(r["plant_index"] for r in results if (r["family"], r["seed"]) == (fam, seed))
+        for plant in draw_plants(seed, fam, count):
+            wrap = plant.params.mu * math.radians(plant.params.bend_deg)
+            notes[plant.name] = (f"bend {plant.params.bend_deg:.0f} deg, mu {plant.params.mu:.2f}: wrap {wrap:.2f}, "
+                                 f"tension ratio {math.exp(wrap):.1f}")
+    return notes
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--family", default=",".join(FAMILIES), help=f"families (default: all of {', '.join(FAMILIES)})")
@@ -479,6 +492,9 @@ def main() -> None:
     print("\nthe nominal model on the check logs without effects (another excitation, RMS after the first "
           f"{CHECK_SKIP_S:g} s): bare (predict) and with its model-error correction (predict --correction)")
     print(blind_lofo.check_log_table(results))
+    print("\neach plant, worst first: the nominal on the bench and on the check logs without effects (deg RMS, "
+          "corrected), and its cases named exactly (its fold's decision)")
+    print(blind_lofo.plant_table(results, folds, plant_notes(results)))
     print("\nthe decision's switches (each fold's decision with one forced on, scored as the pooled table)")
     print(blind_lofo.switch_table(folds))
     print("\nclose calls (each fold's decision and the best-scoring other one, on the other families, that gives its "

@@ -296,6 +296,26 @@ def check_log_table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def plant_table(results: list[dict], folds: dict, about: dict[str, str] | None = None) -> str:
+    """Per plant, worst first: the nominal's bench misfit and known error (after its correction), its median
+    check-log RMS without effects (corrected: another excitation than the bench's), and the plant's cases named
+    exactly under its fold's decision. ``about`` adds a word on each plant (e.g. a sheath's capstan wrap)."""
+    about = about or {}
+    per: dict[str, list[dict]] = {}
+    dec = {fam: dk for fam, (dk, _) in folds.items()}
+    for r in results:
+        per.setdefault(r["plant"], []).append(r)
+    rows = []
+    for plant, rs in per.items():
+        ok = sum(verdict_at(r, dec[r["family"]]) == r["truth"] for r in rs)
+        chk = float(np.median([r["check_rms_nominal_without_effects"] for r in rs]))
+        rows.append((ok / len(rs), plant, rs[0]["bench_misfit_deg"], rs[0]["model_error_deg"], chk, ok, len(rs)))
+    lines = [f"{'plant':<26} {'bench misfit':>12} {'known error':>12} {'check w/o effects':>18} {'exact':>7}   about"]
+    for _, plant, bm, me, chk, ok, n in sorted(rows):
+        lines.append(f"{plant:<26} {bm:>12.3f} {me:>12.3f} {chk:>18.3f} {ok:>3}/{n:<3}   {about.get(plant, '')}")
+    return "\n".join(lines)
+
+
 SWITCHES = ("min_total", "parsimony")  # the decision's switches; their values are those the results' grid holds
 
 
