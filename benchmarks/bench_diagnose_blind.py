@@ -159,6 +159,16 @@ def bench_log(plant: Family, seed: int, index: int, bench_s: float, rate: float)
     return run_log(plant, t, u, np.zeros(t.size), {}, noise, int(rng.integers(1 << 30)))
 
 
+def check_bench_log(plant: Family, seed: int, index: int, bench_s: float, rate: float):
+    """A second bench log of the plant, another input than the bench's random one (a multisine or a sweep,
+    drawn from the plant's own generator), for ``identify --check``."""
+    rng = np.random.default_rng([seed, sum(map(ord, plant.family)), index, 3])
+    t = timebase(bench_s, rate)
+    u = excite(plant, t, str(rng.choice(["multisine", "sweep"])), rng)
+    noise = rng.uniform(0.03, 0.05)
+    return run_log(plant, t, u, np.zeros(t.size), {}, noise, int(rng.integers(1 << 30)))
+
+
 def identified_model(plant: Family, seed: int, index: int, args, work: Path) -> Path:
     """The plant's identified bench model (cached), with its model-error model learned afresh."""
     lg = bench_log(plant, seed, index, args.bench_duration, args.rate)
@@ -182,6 +192,13 @@ def identified_model(plant: Family, seed: int, index: int, args, work: Path) -> 
 
     mf = load_model(cached)
     mf.model_error = bench_model_error(mf, read_log(bench))
+    if getattr(args, "bench_check", False):  # identify --check: a second bench log of another input scores the model
+        from warpbridge.bridge.commands.identify import score_check_log
+
+        chk = check_bench_log(plant, seed, index, args.bench_duration, args.rate)
+        check_csv = work / f"{plant.name}-bench-check.csv"
+        write_log(check_csv, chk, with_airspeed=False)
+        mf.fit.extra["check"], _ = score_check_log(mf, read_log(check_csv), check_csv.name)
     out = work / f"{plant.name}-model.json"
     save_model(out, mf)
     return out
@@ -441,6 +458,9 @@ def main() -> None:
                     help="time a plain diagnose (no --sensitivity) on every n-th case (default 4)")
     ap.add_argument("--cache", type=Path, default=default_cache(), help="cache folder (outside the repository)")
     ap.add_argument("--report-only", action="store_true", help="print the tables from the cached results")
+    ap.add_argument("--bench-check", action="store_true",
+                    help="score each bench model on a second bench log of another input (identify --check), so "
+                         "diagnose takes the larger of the two known errors (results cached apart)")
     ap.add_argument("--choose-on-seed", default="",
                     help="choose each fold's decision on the other families of these seeds (cached: run them "
                          "first), so the seeds scored are held out as well as the family")
@@ -454,7 +474,8 @@ def main() -> None:
     seeds = [int(s) for s in args.seed.split(",") if s.strip()]
     args.cache.mkdir(parents=True, exist_ok=True)
     diag_hash = source_hash(DIAG_SOURCES)
-    res_dir = args.cache / "results" / f"d{args.duration:g}-r{args.rate:g}-b{args.bench_duration:g}-{diag_hash}"
+    res_dir = args.cache / "results" / (f"d{args.duration:g}-r{args.rate:g}-b{args.bench_duration:g}-{diag_hash}"
+                                         + ("-check" if args.bench_check else ""))
     res_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
 

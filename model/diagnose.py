@@ -71,6 +71,7 @@ from warpbridge.model.effects import (
 )
 from warpbridge.model.identify import noise_floor
 from warpbridge.model.initial_state import estimate_plant_z0
+from warpbridge.model.input_check import known_error_on_check
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
@@ -207,11 +208,15 @@ def model_error(fit: FitQuality, noise: float) -> float:
 
 
 def known_error(model: ModelFile, noise: float, use_model_error: bool) -> float:
-    """What the nominal model (with its model-error correction, if used) is known to get wrong beyond noise."""
+    """What the nominal model (with its model-error correction, if used) is known to get wrong beyond noise:
+    on its bench log, or on the check log of another input ``identify --check`` scored it on, if larger."""
     em = model.model_error if use_model_error else None
     if em is not None and math.isfinite(em.known_error_deg):
-        return em.known_error_deg
-    return model_error(model.fit, noise)
+        bench = em.known_error_deg
+    else:
+        bench = model_error(model.fit, noise)
+    check = known_error_on_check(model.fit.extra, em is not None)
+    return max(bench, check) if math.isfinite(check) else bench
 
 
 LATENCY_FIELDS = {"delay": "delay_s", "sensor_lag": "sensor_tau_s"}  # effects that each add latency
@@ -658,6 +663,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "effects": {n: cur.values([n])[n] for n in selected},
         "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
         "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
+        "model_error_from_check": _check_note(model, opt.use_model_error and model.model_error is not None, e_m),
         "decision": opt.decision.to_dict(),
         "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
                                               "clamped to the reachable band, refined on the prediction error)"},
@@ -906,13 +912,25 @@ def _fmt_params(d: dict) -> str:
     return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
 
 
+def _check_note(model: ModelFile, corrected: bool, e_m: float) -> dict | None:
+    """The check log's part in the known error: its value and whether it set it (None without a check)."""
+    check = known_error_on_check(model.fit.extra, corrected)
+    if not math.isfinite(check):
+        return None
+    chk = model.fit.extra.get("check", {})
+    return {"known_error_deg": check, "set_it": check >= e_m, "log": chk.get("log")}
+
+
 def summary_lines(rep: dict) -> list[str]:
     """A readable summary of a report, one line each."""
     lines = []
     where = rep["where"]
     sh = rep["shrinkage"]
+    chk = rep.get("model_error_from_check")
+    on_check = (", measured on its check log of another input" + (f" ({chk['log']})" if chk.get("log") else "")
+                if chk and chk.get("set_it") else "")
     lines.append(f"residual RMS {where['rms_deg']:.4f} deg against a floor of {where['floor_deg']:.4f} deg "
-                 f"(noise {rep['noise_deg']:.4f}, model's known error {rep['model_error_deg']:.4f})")
+                 f"(noise {rep['noise_deg']:.4f}, model's known error {rep['model_error_deg']:.4f}{on_check})")
     em = rep.get("model_error_model") or {}
     if em.get("used"):
         lines.append(f"bench model error: {em['bench_rms_before_deg']:.4f} deg RMS on the bench, "

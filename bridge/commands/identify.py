@@ -26,6 +26,7 @@ from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.effects import Effects
 from warpbridge.model.identify import DELAY_GRID_S, identify
+from warpbridge.model.input_check import input_check
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import ModelFile
 
@@ -45,6 +46,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="search a transport delay up to this long (s) in front of the model: the servo, link and "
                         f"sensor lag of the rig; {MAX_DELAY_S:g} for a model to diagnose with (default 0: "
                         "none, the model the feed-forward flies best with)")
+    p.add_argument("--check", metavar="LOG",
+                   help="a second bench log of the same rig, recorded with another input (a sweep, a multisine): "
+                        "the model is scored on it, and diagnose takes its error there as the model's known error "
+                        "when it is larger than on the bench log (a model that does not carry to another input)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -114,6 +119,9 @@ def main(args: argparse.Namespace) -> int:
     data = read_log(args.log, wing=args.wing)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
+    check = read_log(args.check, wing=args.wing) if args.check else None  # a bad check log is said before the fit
+    for note in check.notes if check is not None else ():
+        print(f"note: {args.check}: {note}", file=sys.stderr)
     progress = Progress(enabled=not args.quiet)
     t0 = time.perf_counter()
     try:
@@ -133,6 +141,12 @@ def main(args: argparse.Namespace) -> int:
     # and diagnose estimate it from each log's first samples); the fit record keeps this log's
     mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s), fit=fit, meta=meta)
     mf.model_error = bench_model_error(mf, data)
+    check_lines = []
+    if check is not None:
+        try:
+            fit.extra["check"], check_lines = score_check_log(mf, check, Path(args.check).name)
+        except ValueError as e:
+            raise UserError(f"--check {args.check}: {e}") from None
     save_model(args.output, mf)
     if args.plot:
         from warpbridge.bridge.commands.plots import plot_identification
@@ -164,9 +178,39 @@ def main(args: argparse.Namespace) -> int:
         em = mf.model_error
         print(f"  model-error model for diagnose: bench residual {em.rms_before_deg:.4f} -> {em.rms_after_deg:.4f} deg "
               f"RMS cross-validated ({', '.join(em.sets) or 'no correction'})")
+    for line in check_lines:
+        print(line)
     if not np.isfinite(res.heldout_rms):
         return 1
     return 0
+
+
+CARRY_FACTOR = 2.0  # a check-log error this many times the bench's own is worth a warning
+
+
+def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
+    """The model's error on a check log of another input (``model.input_check``): the record MODEL.json keeps
+    under ``fit.check`` and the lines ``identify`` prints (a warning when it is well above the bench's)."""
+    from warpbridge.model.diagnose import known_error
+
+    rec = {"log": name} | input_check(mf.params, mf.effects, mf.model_error, check.t, check.u, check.warp,
+                                      check.airspeed)
+    corrected = mf.model_error is not None
+    bench = known_error(ModelFile(mf.params, mf.effects, fit=mf.fit, model_error=mf.model_error), rec["noise_deg"],
+                        corrected)
+    on_check = rec["known_error_corrected_deg" if corrected else "known_error_bare_deg"]
+    kind = "with the model-error correction" if corrected else "bare"
+    lines = [f"  check log {name} ({rec['samples']} samples after its first second): RMS "
+             + (f"{rec['rms_corrected_deg']:.4f} deg with the correction, " if corrected else "")
+             + f"{rec['rms_bare_deg']:.4f} deg bare; noise {rec['noise_deg']:.4f} deg; error beyond the noise "
+             f"{on_check:.4f} deg {kind}, against {bench:.4f} on the bench log"]
+    if on_check > CARRY_FACTOR * max(bench, 0.5 * rec["noise_deg"]):
+        lines.append(f"warning: the model misses the check log by {on_check:.4f} deg beyond its noise, "
+                     f"{on_check / max(bench, 1e-12):.1f}x its error on the bench log: it does not carry to another "
+                     "input as well as to its own (a sheath whose friction remembers many reversals). diagnose "
+                     "takes the check log's error as the model's known error, so it names only changes above it; "
+                     "identified on a bench input with reversals at several amplitudes (a multisine) it may fit better")
+    return rec, lines
 
 
 def bench_model_error(mf: ModelFile, data) -> ErrorModel | None:

@@ -1,0 +1,69 @@
+"""How well an identified model carries to another input: its error on a second bench log.
+
+A model identified on one bench log is scored on the held-out end of that log,
+an input of the same kind. On a sheath whose friction holds a long memory of
+reversals (a large capstan wrap) the model, and the correction learned from its
+bench residual, may fit that input well and another one (a sweep, a multisine)
+several times worse. ``input_check`` predicts a second bench log, recorded with
+another input and no change of the rig, from its own initial state, with and
+without the model-error correction, and returns the error beyond that log's
+noise: what ``diagnose`` then takes as the model's known error when it is the
+larger (``known_error_on_check``), so an effect is named by what changed, not by
+what the model never carried to another input. No I/O.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from warpbridge.model.identify import noise_floor
+from warpbridge.model.initial_state import estimate_plant_z0
+from warpbridge.model.model_error import ErrorModel
+from warpbridge.model.plant import Plant
+
+SKIP_S = 1.0  # the first second is left out: the initial state is estimated from it
+MIN_SAMPLES = 200
+
+
+def _beyond_noise(rms: float, noise: float) -> float:
+    return math.sqrt(max(rms ** 2 - noise ** 2, 0.0)) if math.isfinite(rms) else math.nan
+
+
+def input_check(params, effects, error_model: ErrorModel | None, t, u, w, airspeed=None) -> dict:
+    """The model's RMS on a check log (after its first ``SKIP_S``), bare and with ``error_model``, the log's
+    noise, and each error beyond the noise. Raises ValueError on a log too short to say."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    ok = np.isfinite(w) & (t >= t[0] + SKIP_S)
+    if int(ok.sum()) < MIN_SAMPLES:
+        raise ValueError(f"the check log has {int(ok.sum())} samples with warp after its first {SKIP_S:g} s; "
+                         f"at least {MIN_SAMPLES} are needed")
+    noise = noise_floor(w[np.isfinite(w)])
+    out = {"samples": int(ok.sum()), "noise_deg": noise}
+    for tag, em in (("bare", None), ("corrected", error_model)):
+        if tag == "corrected" and em is None:
+            continue
+        plant = Plant(params, effects, em)
+        z0 = estimate_plant_z0(plant, t, u, w, airspeed)
+        _, w_pred = plant.simulate(t, u, airspeed, z0=z0)
+        rms = float(np.sqrt(np.mean((w[ok] - w_pred[ok]) ** 2)))
+        out[f"rms_{tag}_deg"] = rms
+        out[f"known_error_{tag}_deg"] = _beyond_noise(rms, noise)
+    return out
+
+
+def known_error_on_check(fit_extra: dict, corrected: bool) -> float:
+    """The error beyond noise a model file's check log measured (``fit.check``), corrected or bare; NaN when
+    the file has no check (or not of that kind)."""
+    chk = fit_extra.get("check") if isinstance(fit_extra, dict) else None
+    if not isinstance(chk, dict):
+        return math.nan
+    v = chk.get("known_error_corrected_deg" if corrected else "known_error_bare_deg")
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return math.nan
+    return v if math.isfinite(v) and v >= 0 else math.nan
