@@ -89,8 +89,9 @@ IDENT_SOURCES = ["model/identify.py", "model/kernels.py", "model/boucwen.py", "m
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
                                 "sitl/sheath.py", "model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
                                 "model/diag_where.py", "model/diagnose.py", "model/model_error.py",
-                                "model/effects.py", "model/plant.py", "bridge/commands/diagnose.py",
-                                "bridge/commands/identify.py", "bridge/commands/predict.py",
+                                "model/effects.py", "model/plant.py", "model/input_check.py",
+                                "bridge/commands/diagnose.py", "bridge/commands/identify.py",
+                                "bridge/commands/predict.py",
                                 "benchmarks/bench_diagnose_blind.py"]
 BENCH_S, FIELD_S, CHECK_S, RATE = 40.0, 60.0, 30.0, 500.0
 CHECK_SKIP_S = 1.0
@@ -541,6 +542,13 @@ def main() -> None:
     print(blind_lofo.short_closures(results, folds))
     print("\nmisattributed with the shipped default decision:")
     print(blind_lofo.misses(results, default=default))
+    if args.bench_check:
+        plain_dir = res_dir.with_name(res_dir.name.removesuffix("-check"))
+        without, _ = cached_results(cases, plain_dir)
+        print("\nwith a check log of another input (identify --check) against the same cases without it, shipped "
+              "default decision; a model 'does not carry' when its check raised the known error over 2x (as "
+              "identify warns):")
+        print(blind_lofo.check_comparison(results, without, default))
     hits = [r for r in results if r.get("bound_hits")]
     if hits:
         print(f"\nfitted parameters at a bound: {len(hits)} cases")

@@ -316,6 +316,56 @@ def plant_table(results: list[dict], folds: dict, about: dict[str, str] | None =
     return "\n".join(lines)
 
 
+def _outcomes(rs: list[dict], dk: str) -> dict:
+    t = {"singles": 0, "single_ok": 0, "pairs": 0, "pair_ok": 0, "nones": 0, "false_alarms": 0, "wrong": 0,
+         "nothing": 0}
+    for r in rs:
+        v = verdict_at(r, dk)
+        if not r["truth"]:
+            t["nones"] += 1
+            t["false_alarms"] += bool(v)
+            continue
+        kind = "single" if len(r["truth"]) == 1 else "pair"
+        t[kind + "s"] += 1
+        t[kind + "_ok"] += v == r["truth"]
+        if v != r["truth"]:
+            t["wrong" if v else "nothing"] += 1
+    return t
+
+
+def check_comparison(with_check: list[dict], without: list[dict], dk: str, carry_factor: float = 2.0) -> str:
+    """The same cases diagnosed with models scored on a check log (``identify --check``) and without, under
+    decision ``dk``: per group of plants (those whose check-log known error is over ``carry_factor`` x the
+    bench's and x half the noise, i.e. the model does not carry to another input, and the others), what is
+    named exactly, named wrongly or not at all; then every case whose verdict changed."""
+    base = {(r["plant"], r["case"]): r for r in without}
+    pairs = [(r, base[(r["plant"], r["case"])]) for r in with_check if (r["plant"], r["case"]) in base]
+    if not pairs:
+        return "  no case of these seeds was run without the check (run the same command without --bench-check)"
+    def group(r, r0):  # as identify warns: over carry_factor x the bench's error, or x half the noise
+        carries = r["model_error_deg"] <= carry_factor * max(r0["model_error_deg"], 0.5 * r0["noise"])
+        return "carries" if carries else "does not carry"
+    lines = [f"{'models':<16} {'plants':>6} {'':<8} {'singles':>8} {'pairs':>7} {'false alarms':>13} "
+             f"{'named wrongly':>14} {'nothing named':>14}"]
+    for g in ("does not carry", "carries"):
+        sel = [(r, r0) for r, r0 in pairs if group(r, r0) == g]
+        if not sel:
+            continue
+        n_pl = len({r["plant"] for r, _ in sel})
+        for tag, rs in (("without", [r0 for _, r0 in sel]), ("with", [r for r, _ in sel])):
+            t = _outcomes(rs, dk)
+            lines.append(f"{g if tag == 'without' else '':<16} {n_pl if tag == 'without' else '':>6} {tag:<8} "
+                         f"{t['single_ok']:>4}/{t['singles']:<3} {t['pair_ok']:>3}/{t['pairs']:<3} "
+                         f"{t['false_alarms']:>9}/{t['nones']:<3} {t['wrong']:>14} {t['nothing']:>14}")
+    changed = [(r, r0) for r, r0 in pairs if verdict_at(r, dk) != verdict_at(r0, dk)]
+    lines.append(f"verdicts changed: {len(changed)} of {len(pairs)}")
+    for r, r0 in changed:
+        lines.append(f"  {r['plant']}-c{r['case']:<4} truth {'+'.join(r['truth']) or 'none':<24} "
+                     f"{'+'.join(verdict_at(r0, dk)) or '[]':<24} -> {'+'.join(verdict_at(r, dk)) or '[]':<24} "
+                     f"known error {r0['model_error_deg']:.3f} -> {r['model_error_deg']:.3f} deg")
+    return "\n".join(lines)
+
+
 SWITCHES = ("min_total", "parsimony")  # the decision's switches; their values are those the results' grid holds
 
 
