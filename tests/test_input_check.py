@@ -144,3 +144,20 @@ def test_the_check_error_of_the_kind_asked_is_read():
     extra = {"check": {"known_error_corrected_deg": 0.2, "known_error_bare_deg": 0.5}}
     assert known_error_on_check(extra, corrected=True) == 0.2
     assert known_error_on_check(extra, corrected=False) == 0.5
+
+
+def test_the_warning_says_so_when_the_model_misses_nothing_on_its_bench(tmp_path):
+    from warpbridge.bridge.commands.identify import score_check_log
+    from warpbridge.bridge.commands.logfile import read_log
+    from warpbridge.model.boucwen import BoucWenParams
+    from warpbridge.model.modelfile import FitQuality, ModelFile
+
+    assert run("simulate", "-o", tmp_path / "c.csv", "--duration", 10, "--rate", 100, "--noise", 0.03) == 0
+    log = np.loadtxt(tmp_path / "c.csv", delimiter=",", skiprows=1)
+    log[:, 2] += 0.5 * np.sin(0.7 * log[:, 0])  # the check log's warp wanders off what the model predicts
+    write(tmp_path / "c.csv", log[:, 0], log[:, 1], log[:, 2])
+    mf = ModelFile(BoucWenParams.paper(), fit=FitQuality(0.03, 0.03, 0.03, {"check": {"known_error_bare_deg": 9.0}}))
+    rec, lines = score_check_log(mf, read_log(tmp_path / "c.csv"), "c.csv")
+    assert rec["known_error_bare_deg"] > 0.2
+    assert "against 0.0000 on the bench log" in lines[0]  # the file's earlier check is not the bench's error
+    assert "none on the bench log" in lines[1]

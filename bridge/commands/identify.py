@@ -192,12 +192,16 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
     """The model's error on a check log of another input (``model.input_check``): the record MODEL.json keeps
     under ``fit.check`` and the lines ``identify`` prints (a warning when it is well above the bench's)."""
     from warpbridge.model.diagnose import known_error
+    from warpbridge.model.modelfile import FitQuality
 
     rec = {"log": name} | input_check(mf.params, mf.effects, mf.model_error, check.t, check.u, check.warp,
                                       check.airspeed)
     corrected = mf.model_error is not None
-    bench = known_error(ModelFile(mf.params, mf.effects, fit=mf.fit, model_error=mf.model_error), rec["noise_deg"],
-                        corrected)
+    f = mf.fit  # the bench's own known error: without any check the file already carries
+    bench_fit = FitQuality(f.train_rms_deg, f.heldout_rms_deg, f.noise_deg,
+                           {k: v for k, v in f.extra.items() if k != "check"})
+    bench = known_error(ModelFile(mf.params, mf.effects, fit=bench_fit, model_error=mf.model_error),
+                        rec["noise_deg"], corrected)
     on_check = rec["known_error_corrected_deg" if corrected else "known_error_bare_deg"]
     kind = "with the model-error correction" if corrected else "bare"
     lines = [f"  check log {name} ({rec['samples']} samples after its first second): RMS "
@@ -205,8 +209,9 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
              + f"{rec['rms_bare_deg']:.4f} deg bare; noise {rec['noise_deg']:.4f} deg; error beyond the noise "
              f"{on_check:.4f} deg {kind}, against {bench:.4f} on the bench log"]
     if on_check > CARRY_FACTOR * max(bench, 0.5 * rec["noise_deg"]):
+        than = f"{on_check / bench:.1f}x its error on the bench log" if bench > 0 else "none on the bench log"
         lines.append(f"warning: the model misses the check log by {on_check:.4f} deg beyond its noise, "
-                     f"{on_check / max(bench, 1e-12):.1f}x its error on the bench log: it does not carry to another "
+                     f"{than}: it does not carry to another "
                      "input as well as to its own (a sheath whose friction remembers many reversals). diagnose "
                      "takes the check log's error as the model's known error, so it names only changes above it; "
                      "identified on a bench input with reversals at several amplitudes (a multisine) it may fit better")
