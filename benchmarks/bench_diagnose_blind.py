@@ -546,8 +546,8 @@ def main() -> None:
         plain_dir = res_dir.with_name(res_dir.name.removesuffix("-check"))
         without, _ = cached_results(cases, plain_dir)
         print("\nwith a check log of another input (identify --check) against the same cases without it, shipped "
-              "default decision; a model 'does not carry' when its check raised the known error over 2x (as "
-              "identify warns):")
+              "default decision; a model 'does not carry' when its check raised the known error over 2x and over "
+              "the noise (as identify warns; the field log's noise stands in for the check log's):")
         print(blind_lofo.check_comparison(results, without, default))
     hits = [r for r in results if r.get("bound_hits")]
     if hits:

@@ -210,13 +210,17 @@ def model_error(fit: FitQuality, noise: float) -> float:
 def known_error(model: ModelFile, noise: float, use_model_error: bool) -> float:
     """What the nominal model (with its model-error correction, if used) is known to get wrong beyond noise:
     on its bench log, or on the check log of another input ``identify --check`` scored it on, if larger."""
+    bench = bench_known_error(model, noise, use_model_error)
+    check = known_error_on_check(model.fit.extra, use_model_error and model.model_error is not None)
+    return max(bench, check) if math.isfinite(check) else bench
+
+
+def bench_known_error(model: ModelFile, noise: float, use_model_error: bool) -> float:
+    """The known error measured on the bench log alone (the model-error model's, or identify's held-out)."""
     em = model.model_error if use_model_error else None
     if em is not None and math.isfinite(em.known_error_deg):
-        bench = em.known_error_deg
-    else:
-        bench = model_error(model.fit, noise)
-    check = known_error_on_check(model.fit.extra, em is not None)
-    return max(bench, check) if math.isfinite(check) else bench
+        return em.known_error_deg
+    return model_error(model.fit, noise)
 
 
 LATENCY_FIELDS = {"delay": "delay_s", "sensor_lag": "sensor_tau_s"}  # effects that each add latency
@@ -663,7 +667,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "effects": {n: cur.values([n])[n] for n in selected},
         "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
         "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
-        "model_error_from_check": _check_note(model, opt.use_model_error and model.model_error is not None, e_m),
+        "model_error_from_check": _check_note(model, noise, opt.use_model_error),
         "decision": opt.decision.to_dict(),
         "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
                                               "clamped to the reachable band, refined on the prediction error)"},
@@ -912,13 +916,15 @@ def _fmt_params(d: dict) -> str:
     return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
 
 
-def _check_note(model: ModelFile, corrected: bool, e_m: float) -> dict | None:
-    """The check log's part in the known error: its value and whether it set it (None without a check)."""
-    check = known_error_on_check(model.fit.extra, corrected)
+def _check_note(model: ModelFile, noise: float, use_model_error: bool) -> dict | None:
+    """The check log's part in the known error: its value and whether it set it, i.e. exceeds the bench's
+    (None without a check)."""
+    check = known_error_on_check(model.fit.extra, use_model_error and model.model_error is not None)
     if not math.isfinite(check):
         return None
     chk = model.fit.extra.get("check", {})
-    return {"known_error_deg": check, "set_it": check >= e_m, "log": chk.get("log")}
+    return {"known_error_deg": check, "set_it": check > bench_known_error(model, noise, use_model_error),
+            "log": chk.get("log")}
 
 
 def summary_lines(rep: dict) -> list[str]:

@@ -105,6 +105,17 @@ def test_a_check_log_the_model_carries_to_gives_no_warning_and_keeps_the_bench_e
     assert "check log check.csv" in out and "warning" not in out
     chk = json.loads((tmp_path / "m.json").read_text())["fit"]["check"]
     assert chk["rms_corrected_deg"] < 1.5 * chk["noise_deg"]
+    # a check that misses nothing beyond its noise (as the bench, or less): diagnose keeps the bench's known
+    # error and does not credit the check log with it, even when both are nothing
+    m = json.loads((tmp_path / "m.json").read_text())
+    m["fit"]["check"]["known_error_corrected_deg"] = 0.0
+    (tmp_path / "m.json").write_text(json.dumps(m))
+    assert run("simulate", "-o", tmp_path / "field.csv", "--duration", 20, "--rate", RATE, "--seed", 5) == 0
+    assert run("diagnose", tmp_path / "field.csv", "--model", tmp_path / "m.json", "--report", tmp_path / "r.json",
+               "--quiet", "--jobs", 1) == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["model_error_from_check"] == {"known_error_deg": 0.0, "set_it": False, "log": "check.csv"}
+    assert "check log" not in rep["summary"][0]
 
 
 def test_a_check_log_without_warp_is_refused_before_the_fit(tmp_path, capsys, monkeypatch):

@@ -47,9 +47,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"sensor lag of the rig; {MAX_DELAY_S:g} for a model to diagnose with (default 0: "
                         "none, the model the feed-forward flies best with)")
     p.add_argument("--check", metavar="LOG",
-                   help="a second bench log of the same rig, recorded with another input (a sweep, a multisine): "
-                        "the model is scored on it, and diagnose takes its error there as the model's known error "
-                        "when it is larger than on the bench log (a model that does not carry to another input)")
+                   help="a second bench log of the same rig, recorded with another input (a sweep, a multisine), "
+                        "in the bench log's format (read with the same --wing): the model is scored on it, and "
+                        "diagnose takes its error there as the model's known error when it is larger than on the "
+                        "bench log (a model that does not carry to another input)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -185,12 +186,13 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-CARRY_FACTOR = 2.0  # a check-log error this many times the bench's own is worth a warning
+CARRY_FACTOR = 2.0  # a check-log error this many times the bench's own (and over its noise) is worth a warning
 
 
 def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
     """The model's error on a check log of another input (``model.input_check``): the record MODEL.json keeps
-    under ``fit.check`` and the lines ``identify`` prints (a warning when it is well above the bench's)."""
+    under ``fit.check`` and the lines ``identify`` prints (a warning when it is over ``CARRY_FACTOR`` x the
+    bench's and over the check log's noise)."""
     from warpbridge.model.diagnose import known_error
     from warpbridge.model.modelfile import FitQuality
 
