@@ -193,17 +193,12 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
     """The model's error on a check log of another input (``model.input_check``): the record MODEL.json keeps
     under ``fit.check`` and the lines ``identify`` prints (a warning when it is over ``CARRY_FACTOR`` x the
     bench's and over the check log's noise)."""
-    from warpbridge.model.diagnose import known_error
-    from warpbridge.model.modelfile import FitQuality
+    from warpbridge.model.diagnose import bench_known_error
 
     rec = {"log": name} | input_check(mf.params, mf.effects, mf.model_error, check.t, check.u, check.warp,
                                       check.airspeed)
     corrected = mf.model_error is not None
-    f = mf.fit  # the bench's own known error: without any check the file already carries
-    bench_fit = FitQuality(f.train_rms_deg, f.heldout_rms_deg, f.noise_deg,
-                           {k: v for k, v in f.extra.items() if k != "check"})
-    bench = known_error(ModelFile(mf.params, mf.effects, fit=bench_fit, model_error=mf.model_error),
-                        rec["noise_deg"], corrected)
+    bench = bench_known_error(mf, rec["noise_deg"], corrected)  # the bench's alone, as diagnose weighs it
     on_check = rec["known_error_corrected_deg" if corrected else "known_error_bare_deg"]
     kind = "with the model-error correction" if corrected else "bare"
     lines = [f"  check log {name} ({rec['samples']} samples after its first second): RMS "
