@@ -6,11 +6,13 @@ leave-one-family-out on logs the diagnosis never saw.
                                               [--choose-on-seed 0,1,2]
 
 Plants (``benchmarks/plants.py``; truth side in ``truth_chain.py``,
-``truth_cores.py`` and the sheath of ``sitl/sheath.py``, none of which imports
-the diagnosis's operators): Bouc-Wen with the diagnosis's own effect forms (the
-only family in the model's class), Bouc-Wen, Prandtl-Ishlinskii, Dahl and
-N-segment capstan sheaths with physical effects and bench imperfections
-(link latency, servo dynamics, linkage slack, sensor filter, ADC quantisation).
+``truth_cores.py``, ``truth_lugre.py`` and the sheath of ``sitl/sheath.py``,
+none of which imports the diagnosis's operators): Bouc-Wen with the diagnosis's
+own effect forms (the only family in the model's class), Bouc-Wen,
+Prandtl-Ishlinskii, Dahl, N-segment capstan sheaths and sheaths of N LuGre
+friction nodes (bristles, a lubricant's viscous drag: the only rate-dependent
+family) with physical effects and bench imperfections (link latency, servo
+dynamics, linkage slack, sensor filter, ADC quantisation).
 
 Per plant: a 40 s bench log (random input, no airflow, the tendon already
 loaded at the first sample) and ``warpbridge identify`` on it, which also
@@ -90,6 +92,7 @@ DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.
                                 "sitl/sheath.py", "model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
                                 "model/diag_where.py", "model/diagnose.py", "model/model_error.py",
                                 "model/effects.py", "model/plant.py", "model/input_check.py",
+                                "benchmarks/truth_lugre.py",
                                 "bridge/commands/diagnose.py", "bridge/commands/identify.py",
                                 "bridge/commands/predict.py",
                                 "benchmarks/bench_diagnose_blind.py"]
@@ -430,14 +433,19 @@ def choice_pool(args: argparse.Namespace, families: list[str], res_dir: Path) ->
 
 def plant_notes(results: list[dict]) -> dict[str, str]:
     """A word on each plant drawn again from its seed: a sheath's capstan wrap mu x bend and the tension ratio
-    e^(mu x bend) across it (the friction's reach: the band's width and how much one Bouc-Wen state must hold)."""
+    e^(mu x bend) across it (the friction's reach: the band's width and how much one Bouc-Wen state must hold);
+    for the LuGre sheath also its viscous drag (the share of mu_c it adds at 20 mm/s: how rate dependent)."""
     notes = {}
-    for fam, seed in sorted({(r["family"], r["seed"]) for r in results if r["family"] == "sheath"}):
+    for fam, seed in sorted({(r["family"], r["seed"]) for r in results if r["family"] in ("sheath", "lugre-sheath")}):
         count = 1 + max(r["plant_index"] for r in results if (r["family"], r["seed"]) == (fam, seed))
         for plant in draw_plants(seed, fam, count):
-            wrap = plant.params.mu * math.radians(plant.params.bend_deg)
-            notes[plant.name] = (f"bend {plant.params.bend_deg:.0f} deg, mu {plant.params.mu:.2f}: wrap {wrap:.2f}, "
-                                 f"tension ratio {math.exp(wrap):.1f}")
+            if fam == "sheath":
+                bend, mu, extra = plant.params.bend_deg, plant.params.mu, ""
+            else:
+                bend, mu, extra = plant.bend_deg, plant.mu_c, f", viscous {plant.mu_v / plant.mu_c:.0%}"
+            wrap = mu * math.radians(bend)
+            notes[plant.name] = (f"bend {bend:.0f} deg, mu {mu:.2f}: wrap {wrap:.2f}, tension ratio "
+                                 f"{math.exp(wrap):.1f}{extra}")
     return notes
 
 

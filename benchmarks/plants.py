@@ -11,6 +11,7 @@ imports ``warpbridge.model``: the effects are written again where they act.
 | ``prandtl-ishlinskii`` | sum of plays + spring     | physical                               | no                   |
 | ``dahl``             | Dahl friction + spring      | physical                               | no                   |
 | ``sheath``           | N-segment capstan sheath    | physical                               | no                   |
+| ``lugre-sheath``     | N nodes of LuGre friction   | physical                               | no (rate dependent)  |
 
 Physical effects (``Physical``): a transport delay is extra latency in the
 link; a slew limit a slower servo (its own second-order position loop); a
@@ -47,6 +48,7 @@ from truth_chain import (
     warming_drift,
 )
 from truth_cores import bw_run, bw_saturation, dahl_run, pi_run
+from truth_lugre import V_REF, lugre_params, lugre_run
 
 EFFECTS = ("delay", "rate_limit", "backlash", "friction", "pretension", "sensor_lag", "drift", "aero_load")
 PRE_ROLL_S = 5.0  # every log starts after this much history: the tendon is already loaded
@@ -93,7 +95,7 @@ class Family:
 
     # the core with its friction factor, pre-tension (offset, stiffness factor) and aero stretch (c0, c1)
     def core(self, x: np.ndarray, q: np.ndarray, friction: float, pre: tuple[float, float],
-             aero: tuple[float, float]) -> np.ndarray:
+             aero: tuple[float, float], t: np.ndarray | None = None) -> np.ndarray:
         raise NotImplementedError
 
     def simulate(self, t: np.ndarray, u: np.ndarray, airspeed: np.ndarray | None, spec: Spec,
@@ -147,7 +149,7 @@ def physical_path(fam: Family, t, u, airspeed, spec: Spec, seed: int) -> tuple[n
     friction = math.exp(math.copysign(s, a))
     q = dynamic_pressure_kpa(airspeed) if airspeed is not None else np.zeros(t.size)
     s, _, mix = _size(spec, "aero_load")
-    w = fam.core(x, q, friction, pretension_of(spec, span), aero_of(fam, s, mix))
+    w = fam.core(x, q, friction, pretension_of(spec, span), aero_of(fam, s, mix), t)
     s, kappa, _ = _size(spec, "sensor_lag")
     taus = (b.sensor_tau_s,)
     if s > 0:
@@ -194,7 +196,7 @@ class BoucWen(Family):
     family: str = "bouc-wen-phys"
     name: str = ""
 
-    def core(self, x, q, friction, pre, aero):
+    def core(self, x, q, friction, pre, aero, t=None):
         p = self.p.copy()
         off, stiff = pre
         if self.in_class:
@@ -312,7 +314,7 @@ class PrandtlIshlinskii(Family):
     family: str = "prandtl-ishlinskii"
     name: str = ""
 
-    def core(self, x, q, friction, pre, aero):
+    def core(self, x, q, friction, pre, aero, t=None):
         off, stiff = pre
         c0, c1, c2 = self.c
         return pi_run(np.ascontiguousarray(x), self.radii * friction, self.weights, c0, c1 * stiff, c2, off, q,
@@ -351,7 +353,7 @@ class Dahl(Family):
     family: str = "dahl"
     name: str = ""
 
-    def core(self, x, q, friction, pre, aero):
+    def core(self, x, q, friction, pre, aero, t=None):
         off, stiff = pre
         hc = self.hc * friction
         return dahl_run(np.ascontiguousarray(x), hc, self.a, self.k * stiff, self.k2, self.c0, off, -hc, q,
@@ -395,7 +397,7 @@ class Sheath(Family):
         """Trailing-edge load (N) per kPa at full size: a third of the rig's pull for the 12 deg range."""
         return 12.0 * self.params.mm_per_deg * self.params.k_wing / 3.0
 
-    def core(self, x, q, friction, pre, aero):
+    def core(self, x, q, friction, pre, aero, t=None):
         sh = _sheath_module()
         off, stiff = pre
         # pre-tension: a relative change of the rig's tension at rest (the offset part of the spec, over a
@@ -432,9 +434,114 @@ def draw_sheath(rng: np.random.Generator) -> Sheath:
     raise RuntimeError("could not draw a usable sheath rig")
 
 
+# ---- a second sheath, in another form: LuGre friction at each node (``truth_lugre``) ------------------
+
+@dataclass
+class LugreSheath(Family):
+    """N massless nodes along the sheath, each with LuGre friction (bristles, Stribeck, a lubricant's viscous
+    drag) on the normal force of the tendon bent over it, an elastic tendon, a hardening wing: rate dependent,
+    unlike every other family. Friction scales the friction coefficients; pre-tension is a turnbuckle that
+    shortens the tendon (a travel offset) and stiffens the wing; the aerodynamic load pushes the trailing edge
+    back (N per kPa, following the warp)."""
+
+    bend_deg: float = 180.0
+    n: int = 10
+    k_tendon: float = 5.0
+    t_rest: float = 0.5
+    mu_c: float = 0.15
+    mu_s: float = 0.18
+    v_s: float = 1.0
+    bristle_mm: float = 0.01
+    bristle_tau_s: float = 0.001
+    mu_v: float = 0.03
+    k_wing: float = 1.0
+    hardening: float = 0.2
+    mm_per_deg: float = 0.5
+    u_lo: float = 0.0
+    u_hi: float = 1.0
+    bench: Bench = field(default_factory=Bench)
+    family: str = "lugre-sheath"
+    name: str = ""
+
+    def params(self, friction: float = 1.0, stiff: float = 1.0) -> np.ndarray:
+        return lugre_params(self.bend_deg, self.n, self.k_tendon, self.t_rest, self.mu_c * friction,
+                            self.mu_s * friction, self.v_s, self.bristle_mm, self.bristle_tau_s, self.mu_v * friction,
+                            self.k_wing * stiff, self.hardening, self.mm_per_deg)
+
+    def aero_scale(self) -> float:
+        """Trailing-edge load (N) per kPa at full size: a third of the rig's pull for the 12 deg range."""
+        return 12.0 * self.mm_per_deg * self.k_wing / 3.0
+
+    def core(self, x, q, friction, pre, aero, t=None):
+        if t is None:
+            raise ValueError("the LuGre sheath is rate dependent: it needs the sample times")
+        off, stiff = pre
+        w, _, _ = lugre_run(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(x, dtype=np.float64) + off,
+                         np.ascontiguousarray(q, dtype=np.float64), float(aero[0]), float(aero[1]),
+                         self.params(friction, stiff), self.n)
+        return w
+
+    @property
+    def wrap(self) -> float:
+        return self.mu_c * math.radians(self.bend_deg)
+
+
+def _lugre_travel(fam: LugreSheath, w_target: float, speed: float) -> tuple[float | None, float]:
+    """Travel (mm) at which a steady pull at ``speed`` mm/s from rest reaches ``w_target`` deg (None if it does
+    not within 45 mm), and the lowest tendon tension met."""
+    rate = 100.0
+    t = np.arange(int(45.0 / speed * rate)) / rate
+    x = speed * t
+    w, t_min, _ = lugre_run(t, x, np.zeros(t.size), 0.0, 0.0, fam.params(), fam.n)
+    hit = np.flatnonzero(w >= w_target)
+    return (float(x[hit[0]]) if hit.size else None), t_min
+
+
+def draw_lugre_sheath(rng: np.random.Generator) -> LugreSheath:
+    """A rig over a wide physical range (uniform unless said; log-uniform for ratios of scale): bend 45..450 deg;
+    mu_c 0.05..0.3 (log), a static excess mu_s / mu_c 1..1.4 (capped where the steady friction would fall with
+    speed), Stribeck speed 0.3..3 mm/s (log); a viscous drag
+    adding 0..60 % of mu_c at 20 mm/s; bristles 0.003..0.03 mm (log) damped over 0.3..3 ms (log); 3..16 nodes;
+    tendon 1..20 N/mm (log); wing 0.5..3 N/mm (log), hardening 0..0.6 per 10 deg, 0.3..0.8 mm per deg; a tension
+    at rest holding the wing at 0.3..1.5 deg. The travel runs from where a slow pull reaches 2 deg to where it
+    reaches 12 deg; kept when that is a sensible travel and a full cycle at speed never slackens the tendon."""
+    for _ in range(100):
+        mu_c = float(np.exp(rng.uniform(math.log(0.05), math.log(0.3))))
+        k_wing = float(np.exp(rng.uniform(math.log(0.5), math.log(3.0))))
+        mm_per_deg = float(rng.uniform(0.3, 0.8))
+        hardening = float(rng.uniform(0.0, 0.6))
+        w_rest = float(rng.uniform(0.3, 1.5))
+        pa = w_rest * mm_per_deg
+        fam = LugreSheath(
+            bend_deg=float(rng.uniform(45.0, 450.0)), n=int(rng.integers(3, 17)),
+            k_tendon=float(np.exp(rng.uniform(math.log(1.0), math.log(20.0)))),
+            t_rest=k_wing * pa * (1.0 + hardening / (20.0 * mm_per_deg) * pa),
+            mu_c=mu_c, mu_s=mu_c * float(rng.uniform(1.0, 1.4)),
+            v_s=float(np.exp(rng.uniform(math.log(0.3), math.log(3.0)))),
+            bristle_mm=float(np.exp(rng.uniform(math.log(0.003), math.log(0.03)))),
+            bristle_tau_s=float(np.exp(rng.uniform(math.log(3e-4), math.log(3e-3)))),
+            mu_v=mu_c * float(rng.uniform(0.0, 0.6)), k_wing=k_wing, hardening=hardening, mm_per_deg=mm_per_deg)
+        # the steady friction must not fall with speed (truth_lugre): the Stribeck drop's steepest slope,
+        # 0.858 (mu_s - mu_c) / v_s, stays under 90 % of the viscous slope mu_v / V_REF
+        fam.mu_s = min(fam.mu_s, mu_c + 0.9 * fam.mu_v / V_REF * fam.v_s / 0.858)
+        u_lo, _ = _lugre_travel(fam, 2.0, 2.0)
+        u_hi, _ = _lugre_travel(fam, 12.0, 2.0)
+        if u_lo is None or u_hi is None or not 1.0 < u_hi - u_lo < 40.0:
+            continue
+        # a full cycle at speed (1 Hz over the travel) must keep the tendon taut
+        t = np.arange(4000) / 500.0
+        x = 0.5 * (u_lo + u_hi) - 0.5 * (u_hi - u_lo) * np.cos(2 * np.pi * t)
+        _, t_min, _ = lugre_run(t, x, np.zeros(t.size), 0.0, 0.0, fam.params(), fam.n)
+        if t_min <= 0.05 * fam.t_rest:
+            continue
+        fam.u_lo, fam.u_hi, fam.bench = u_lo, u_hi, Bench.draw(rng, u_hi - u_lo)
+        return fam
+    raise RuntimeError("could not draw a usable LuGre sheath rig")
+
+
 # ---- drawing ------------------------------------------------------------------------------------
 
-FAMILIES = ("bouc-wen", "bouc-wen-phys", "prandtl-ishlinskii", "dahl", "sheath")
+FAMILIES = ("bouc-wen", "bouc-wen-phys", "prandtl-ishlinskii", "dahl", "sheath", "lugre-sheath")
 
 
 def draw_family(family: str, rng: np.random.Generator) -> Family:
@@ -448,6 +555,8 @@ def draw_family(family: str, rng: np.random.Generator) -> Family:
         return draw_dahl(rng)
     if family == "sheath":
         return draw_sheath(rng)
+    if family == "lugre-sheath":
+        return draw_lugre_sheath(rng)
     raise ValueError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
 
 
