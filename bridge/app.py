@@ -73,6 +73,7 @@ SERVO_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 SENSOR_MOVE_MM = 0.3  # the command must move this much for an unchanged reading to count as frozen
 ERROR_POLL_S = 1.0
 DT_MAX_S = 0.1  # the controller never integrates over a longer gap than this
+DISARMED_MARGIN_US = 50.0  # disarmed, an output this far below pwm_min is the FC's disarmed value
 ACK_COMMANDS = (mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_ACTUATOR)
 TAG = {"left": "L", "right": "R"}
 # the model parameters in MAVLink order: WB_BW_<suffix> -> BoucWenParams field (b as B1..B6)
@@ -222,6 +223,7 @@ class Bridge:
         self.failsafe = True  # until the first servo message
         self.failsafe_entries = 0
         self._fs_since = self.start  # when the current failsafe began
+        self._parked: set[str] = set()  # wings held neutral on the FC's disarmed output value
         self.cycles = 0
         self._last_tick: float | None = None
         self._next_error_poll = 0.0
@@ -437,6 +439,26 @@ class Bridge:
             self.telemetry.status(SEV_NOTICE, f"WB {name} sensor back", key=back)
         return w.sensor_cal.deg_for_counts(raw)
 
+    def _disarmed_values(self, link: FcLink) -> set[str]:
+        """Wings whose aileron output sits below its flying range while the FC is disarmed: that is the
+        output's disarmed value (PX4 sends PWM_MAIN_DISn, 900 us by default, on every output until it arms),
+        which would read as full aileron; such a wing holds its neutral warp. Logged when it starts and ends."""
+        parked = set()
+        if not link.armed:
+            for name, w in self.wings.items():
+                pwm = link.servo_pwm.get(w.cfg.source_channel)
+                if pwm is not None and pwm < w.cfg.pwm_min - DISARMED_MARGIN_US:
+                    parked.add(name)
+        if parked != self._parked:
+            for name in sorted(parked - self._parked):
+                log.info("%s wing: FC disarmed and output %d at %.0f us, below its range: its disarmed value, "
+                         "wing neutral", name, self.wings[name].cfg.source_channel,
+                         link.servo_pwm[self.wings[name].cfg.source_channel])
+            for name in sorted(self._parked - parked):
+                log.info("%s wing: following output %d again", name, self.wings[name].cfg.source_channel)
+            self._parked = parked
+        return parked
+
     def _setpoints(self, now: float) -> dict[str, float]:
         link = self.link
         silent = link.servo_time is None or now - link.servo_time > self.fs_timeout
@@ -459,9 +481,12 @@ class Bridge:
                 self.telemetry.status(SEV_CRITICAL, "WB failsafe: no servo outputs, wings neutral", key="fs")
             return neutral
         out = {}
+        parked = self._disarmed_values(link)
         for name, sp in self.mixer.setpoints(link.servo_pwm).items():
             w = self.wings[name]
-            if sp is not None:
+            if name in parked:  # the FC's disarmed value, not an aileron command
+                w.pwm_time, w.setpoint = now, neutral[name]
+            elif sp is not None:
                 w.pwm_time, w.setpoint = now, sp
             elif w.pwm_time is None or now - w.pwm_time > self.fs_timeout:
                 w.setpoint = neutral[name]  # invalid for too long: neutral; briefly: hold the last

@@ -56,13 +56,15 @@ class FakeFc:
         self.mav = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
         self.texts: list[str] = []
         self._hb = 0.0
+        self.armed = True
 
     def send(self, aileron_us: int | None) -> None:
         now = time.monotonic()
         if now - self._hb > 0.2:
             self._hb = now
             self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                                        mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, mavlink.MAV_STATE_ACTIVE)
+                                        mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0, 0,
+                                        mavlink.MAV_STATE_ACTIVE)
         if aileron_us is not None:
             self.mav.mav.servo_output_raw_send(int(now * 1e6) & 0xFFFFFFFF, 0, aileron_us, 1500, 1100, 1500,
                                                0, 0, 0, 0)
@@ -174,3 +176,35 @@ def test_servo_loss_does_not_stop_the_loop(tmp_path):
     assert len(servo.history) > n_before  # driving again after the reopen
     assert bridge_rows_have_neutral(tmp_path)
     assert any("servo lost" in x for x in fc.texts)
+
+
+def test_a_disarmed_output_below_its_range_holds_the_wings_neutral(tmp_path):
+    """PX4 sends its disarmed value (900 us) on every output until it arms: not full aileron. A disarmed FC
+    whose aileron moves within its range (ArduPilot, PX4 with COM_PREARM_MODE 2) is followed; armed, a low
+    output is a command again."""
+    port = free_udp_port()
+    config = load_config(write_config(tmp_path, port))
+    stop = threading.Event()
+    bridge = threading.Thread(target=lambda: run_bridge(config, stop_event=stop, servo=LoopBackend()))
+    bridge.start()
+    try:
+        fc = FakeFc(port)
+        fc.armed = False
+        fc.run_until(900, lambda: following(tmp_path))
+        fc.run(900, 0.8)
+        fc.run(1800, 0.8)  # disarmed, surfaces live: followed
+        fc.run(900, 0.8)
+        fc.armed = True
+        fc.run(900, 1.2)  # armed: full left aileron
+    finally:
+        stop.set()
+        bridge.join(10)
+    seen = []
+    for r in read_log(tmp_path):
+        key = (r["mode"], r["left_setpoint"], r["right_setpoint"])
+        if r["mode"] != "failsafe" and (not seen or seen[-1] != key):
+            seen.append(key)
+    assert seen[0] == ("ff", "2", "2")  # parked at neutral, not (0, 8)
+    assert ("ff", "6.5", "0.5") in seen
+    assert seen.index(("ff", "6.5", "0.5")) < seen.index(("ff", "2", "2"), 1)  # parked again after
+    assert seen[-1] == ("ff", "0", "8")  # armed: the low output is a command

@@ -21,8 +21,7 @@ ground station through the FC; a parameter set through the FC is answered (and a
 explained); the output-function check names a wrong channel (``--check`` and at run time) and
 judges again when a ground station changes an output's function.
 
-``WARPBRIDGE_PX4`` (a PX4 SITL build) is not exercised here yet; docs/autopilot-sitl.md has the
-manual procedure for PX4's SIH airplane.
+PX4's SIH airplane is ``tests/test_px4_sitl.py`` (``WARPBRIDGE_PX4``).
 """
 
 from __future__ import annotations

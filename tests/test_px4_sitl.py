@@ -1,0 +1,320 @@
+"""The bridge against PX4's SITL (opt-in): the SIH fixed wing, airframe 10041_sihsim_airplane.
+
+Skipped unless ``WARPBRIDGE_PX4`` names a PX4 SITL binary (``build/px4_sitl_default/bin/px4`` of a
+``make px4_sitl_default`` build, v1.14 or later; see docs/autopilot-sitl.md). Run with::
+
+    WARPBRIDGE_PX4=/path/to/PX4-Autopilot/build/px4_sitl_default/bin/px4 python -m pytest -m autopilot_sitl
+
+PX4 starts headless (``px4 -d -i <n> <build>/etc``, ``PX4_SYS_AUTOSTART=10041``, ``PX4_SIMULATOR=sihsim``)
+in a temporary directory on a free instance number n: its ground-station link listens on UDP 18570+n, its
+onboard (API) link sends to 14540+n, where the bridge, the real ``warpbridge run``, listens
+(``udpin``), as on a companion computer. The test's ground station speaks first to 18570+n (PX4 streams
+a link to whoever it heard first, and forwards only to links it has heard from).
+
+The stock airframe drives the aileron on output 3 (``PWM_MAIN_FUNC3`` 201, ``CA_SV_CS0_TYPE`` 1, left
+aileron, roll torque -0.5): a roll-right stick lowers that output, so the left wing is ``reverse``. PX4
+holds every output at its disarmed value (900 us) until it arms; with ``COM_PREARM_MODE`` 2 the servos
+follow the sticks while disarmed, which lets the test move the aileron with MANUAL_CONTROL in Manual mode
+without arming (SIH's airplane of v1.15 does not survive arming in its default Hold mode).
+
+The checks: ``--check`` finds the aileron on output 3 and names output 4's elevator; the bridge holds
+the wings neutral on the disarmed value, then follows a roll sweep in the right direction; its named
+values, start message and parameter answers reach the ground station through PX4.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from warpbridge.bridge.mavlink_env import mavlink, mavutil
+
+PX4 = os.environ.get("WARPBRIDGE_PX4", "")
+pytestmark = [
+    pytest.mark.autopilot_sitl,
+    pytest.mark.skipif(not (PX4 and os.access(PX4, os.X_OK)),
+                       reason="opt-in: set WARPBRIDGE_PX4 to a PX4 SITL binary (docs/autopilot-sitl.md)"),
+]
+
+PX4_MANUAL = 1  # PX4 custom main mode
+
+
+def wait_for(cond: Callable[[], Any], timeout: float, step: float = 0.05) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = cond()
+        if got:
+            return got
+        time.sleep(step)
+    return cond()
+
+
+def _udp_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_instance() -> int:
+    for n in range(3, 10):  # past 9 PX4 gives every instance the same offboard port
+        ports = [18570 + n, 14580 + n, 14540 + n, 14280 + n, 14030 + n, 13030 + n, 13280 + n, 19450 + n,
+                 19410 + n]
+        if all(_udp_free(p) for p in ports):
+            return n
+    raise RuntimeError("no free PX4 SITL instance number")
+
+
+class Px4:
+    """The SITL process in its own directory (PX4 keeps parameters.bson, dataman and logs there)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.instance = free_instance()
+        self.gcs_port, self.bridge_port = 18570 + self.instance, 14540 + self.instance
+        etc = Path(PX4).resolve().parents[1] / "etc"
+        env = dict(os.environ, PX4_SYS_AUTOSTART="10041", PX4_SIM_MODEL="sihsim_airplane", PX4_SIMULATOR="sihsim")
+        self.log_path = folder / "px4.log"
+        self.log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen([PX4, "-d", "-i", str(self.instance), str(etc)], cwd=folder, env=env,
+                                     stdin=subprocess.DEVNULL, stdout=self.log, stderr=subprocess.STDOUT)
+
+    def wait_started(self, timeout: float = 60.0) -> None:
+        def up() -> bool:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"px4 exited: {self.log_path.read_text(errors='replace')[-2000:]}")
+            return "Startup script returned successfully" in self.log_path.read_text(errors="replace")
+        assert wait_for(up, timeout), "px4 did not start"
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.log.close()
+
+
+class Gcs:
+    """A ground station on PX4's GCS link: heartbeats, the roll stick (MANUAL_CONTROL), what 191 sends."""
+
+    def __init__(self, port: int, target: int) -> None:
+        self.target = target
+        self.mav = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255,
+                                              source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.lock = threading.Lock()
+        self.roll: int | None = None  # MANUAL_CONTROL y, -1000..1000
+        self.floats: list[tuple[float, str, float]] = []
+        self.texts: list[tuple[float, str]] = []
+        self.params: dict[tuple[int, str], float] = {}
+        self.servo3: int | None = None
+        self.base_mode = 0
+        self.custom_mode = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_hb = next_stick = 0.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            if self.roll is not None and now >= next_stick:
+                next_stick = now + 0.05
+                self.mav.mav.manual_control_send(self.target, 0, self.roll, 500, 0, 0)
+            try:
+                self.mav.select(0.02)
+                while (m := self.mav.recv_msg()) is not None:
+                    self._take(m)
+            except Exception:  # noqa: BLE001 - the autopilot went away at the end
+                if self._stop.is_set():
+                    return
+                time.sleep(0.05)
+
+    def _take(self, m: Any) -> None:
+        t = m.get_type()
+        comp = m.get_srcComponent()
+        if t == "HEARTBEAT" and comp == 1:
+            self.base_mode, self.custom_mode = m.base_mode, m.custom_mode
+        if t == "SERVO_OUTPUT_RAW" and m.port == 0:
+            self.servo3 = m.servo3_raw
+        with self.lock:
+            if t == "PARAM_VALUE":
+                value = m.param_value
+                if comp == 1 and m.param_type in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT8):
+                    value = struct.unpack("<i", struct.pack("<f", value))[0]  # PX4 packs integers bytewise
+                self.params[comp, m.param_id] = value
+            if comp != 191:
+                return
+            if t == "NAMED_VALUE_FLOAT":
+                self.floats.append((time.monotonic(), m.name, m.value))
+            elif t == "STATUSTEXT":
+                self.texts.append((time.monotonic(), m.text))
+
+    def set_px4_int(self, name: str, value: int) -> None:
+        packed = struct.unpack("<f", struct.pack("<i", value))[0]
+        self.mav.mav.param_set_send(self.target, 1, name.encode(), packed, mavlink.MAV_PARAM_TYPE_INT32)
+
+    def manual_mode(self) -> None:
+        self.mav.mav.command_long_send(self.target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                       mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_MANUAL, 0, 0, 0, 0, 0)
+
+    def latest(self, name: str, since: float = 0.0) -> float | None:
+        with self.lock:
+            vals = [v for t, n, v in self.floats if n == name and t >= since]
+        return vals[-1] if vals else None
+
+    def text(self, fragment: str, since: float = 0.0) -> str | None:
+        with self.lock:
+            return next((x for t, x in self.texts if fragment in x and t >= since), None)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.mav.close()
+
+
+def bridge_config(folder: Path, port: int, left_source: int = 3) -> Path:
+    wings = ""
+    for name, reverse, channel in (("left", "true", 0), ("right", "false", 1)):
+        wings += f"""
+[wing.{name}]
+source_channel = {left_source if name == "left" else 3}
+reverse = {reverse}
+pwm_min = 1000
+pwm_trim = 1500
+pwm_max = 2000
+max_warp_deg = 8.0
+bias_deg = 2.0
+servo_channel = {channel}
+[wing.{name}.servo]
+pulse_min_us = 1000
+pulse_max_us = 2000
+pulse_zero_us = 1200
+mm_per_us = 0.02
+[wing.{name}.control]
+mode = "ff"
+"""
+    cfg = folder / "wb.toml"
+    cfg.write_text(f"""
+[link]
+connection = "udpin:127.0.0.1:{port}"
+servo_rate_hz = 50
+[loop]
+rate_hz = 100
+[telemetry]
+rate_hz = 10
+[params]
+file = "params.json"
+[servo]
+backend = "loop:"
+[sensor]
+backend = "none"
+""" + wings)
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def px4(tmp_path_factory) -> Iterator[tuple[Px4, Gcs]]:
+    folder = tmp_path_factory.mktemp("px4")
+    ap = Px4(folder)
+    gcs = None
+    try:
+        ap.wait_started()
+        gcs = Gcs(ap.gcs_port, ap.instance + 1)  # PX4's MAV_SYS_ID is its instance + 1
+        assert wait_for(lambda: gcs.servo3 is not None, 30.0), "no SERVO_OUTPUT_RAW from PX4"
+        yield ap, gcs
+    finally:
+        if gcs is not None:
+            gcs.close()
+        ap.stop()
+
+
+def run_bridge(folder: Path, port: int, **kw: Any) -> tuple[subprocess.Popen, Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    err = folder / "bridge.stderr"
+    proc = subprocess.Popen([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config",
+                             str(bridge_config(folder, port, **kw))], cwd=folder,
+                            stdout=subprocess.DEVNULL, stderr=open(err, "wb"))  # noqa: SIM115
+    return proc, err
+
+
+def stop(proc: subprocess.Popen) -> int:
+    proc.terminate()
+    try:
+        return proc.wait(10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait(5)
+
+
+def test_check_finds_the_aileron_on_output_3_and_names_the_elevator(px4, tmp_path):
+    ap, _ = px4
+    r = subprocess.run([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config",
+                        str(bridge_config(tmp_path, ap.bridge_port, left_source=4)), "--check"],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "link: FC system" in r.stdout and "(px4)" in r.stdout, r.stdout
+    assert ("right wing: FC output 3 is an aileron (PWM_MAIN_FUNC3 201, CA_SV_CS0_TYPE 1 (left aileron)): OK"
+            in r.stdout), r.stdout
+    assert "left wing: FC output 4 is NOT an aileron (PWM_MAIN_FUNC4 202" in r.stdout, r.stdout
+
+
+def test_bridge_parks_on_the_disarmed_value_then_follows_a_roll_sweep_through_px4(px4, tmp_path):
+    ap, gcs = px4
+    t0 = time.monotonic()
+    proc, err = run_bridge(tmp_path / "b", ap.bridge_port)
+    try:
+        assert wait_for(lambda: gcs.text("WB started: ff", t0), 60.0), err.read_text()[-3000:]
+        # disarmed at PX4's disarmed value (900 us): both wings neutral, not full aileron
+        assert wait_for(lambda: gcs.servo3 == 900, 10.0), gcs.servo3
+        assert wait_for(lambda: gcs.latest("L_sp", t0) is not None, 20.0), err.read_text()[-3000:]
+        time.sleep(1.0)
+        assert gcs.latest("L_sp") == pytest.approx(2.0) and gcs.latest("R_sp") == pytest.approx(2.0)
+        assert "its disarmed value, wing neutral" in err.read_text()
+        # servos live while disarmed, Manual mode, the roll stick moves output 3
+        gcs.set_px4_int("COM_PREARM_MODE", 2)
+        assert wait_for(lambda: gcs.params.get((1, "COM_PREARM_MODE")) == 2, 10.0), gcs.params
+        gcs.roll = 0
+        gcs.manual_mode()
+        assert wait_for(lambda: gcs.custom_mode >> 16 == PX4_MANUAL, 10.0), hex(gcs.custom_mode)
+        assert wait_for(lambda: gcs.servo3 is not None and abs(gcs.servo3 - 1500) < 30, 10.0), gcs.servo3
+        sp = {}
+        for roll in (0, 300, -300):
+            gcs.roll = roll
+            assert wait_for(lambda roll=roll: (gcs.servo3 - 1500) * roll < 0 if roll else True, 10.0), \
+                gcs.servo3
+            time.sleep(1.5)
+            pwm = gcs.servo3
+            sp[roll] = (gcs.latest("L_sp"), gcs.latest("R_sp"), pwm)
+        # roll right lowers output 3 (the airframe's torque -0.5); the left wing (reversed) gains lift
+        assert sp[300][2] < 1500 < sp[-300][2]
+        assert sp[0][0] == pytest.approx(2.0, abs=0.1)
+        assert sp[300][0] > sp[0][0] > sp[-300][0]
+        assert sp[300][1] < sp[0][1] < sp[-300][1]
+        a = (1500 - sp[300][2]) / 500.0  # the mixer's normalised aileron for the reversed left wing
+        assert sp[300][0] == pytest.approx(2.0 + a * 6.0, abs=0.1)
+        assert sp[300][1] == pytest.approx(2.0 * (1 - a), abs=0.1)
+        # a parameter set through PX4 reaches the bridge (component 191) and its answer comes back
+        gcs.mav.mav.param_set_send(gcs.target, 191, b"WB_KP", 2.5, mavlink.MAV_PARAM_TYPE_REAL32)
+        assert wait_for(lambda: gcs.params.get((191, "WB_KP")) == pytest.approx(2.5), 10.0), gcs.params
+        assert "FC autopilot: px4" in err.read_text()
+    finally:
+        gcs.roll = None
+        assert stop(proc) == 0, err.read_text()[-3000:]
