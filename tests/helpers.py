@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from warpbridge.sitl.cmd_sitl import free_udp_port  # noqa: F401  (the tests' loopback ports: one picker)
@@ -17,6 +23,119 @@ source_channel = 1
 reverse = true
 servo_channel = 1
 """
+
+
+def wait_for(cond: Callable[[], Any], timeout: float, step: float = 0.05) -> Any:
+    """Poll ``cond`` until it is truthy or ``timeout`` (s) has passed; its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = cond()
+        if got:
+            return got
+        time.sleep(step)
+    return cond()
+
+
+def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int:
+    """SIGTERM, then SIGKILL after ``grace_s``; the exit status."""
+    if proc.poll() is not None:
+        return proc.returncode
+    proc.terminate()
+    try:
+        return proc.wait(grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait(5)
+
+
+def sitl_wing_toml(name: str, source: int, reverse: bool, servo_channel: int, mode: str,
+                   pwm: tuple[int, int, int] = (1100, 1500, 1900), pulse_zero_us: float = 1200.0,
+                   mm_per_us: float = 0.02) -> str:
+    """A wing's tables of a bridge config for the real-autopilot tests: no sensor, 0..8 deg with a 2 deg bias."""
+    return f"""
+[wing.{name}]
+source_channel = {source}
+reverse = {"true" if reverse else "false"}
+pwm_min = {pwm[0]}
+pwm_trim = {pwm[1]}
+pwm_max = {pwm[2]}
+max_warp_deg = 8.0
+bias_deg = 2.0
+servo_channel = {servo_channel}
+[wing.{name}.servo]
+pulse_min_us = 1000
+pulse_max_us = 2000
+pulse_zero_us = {pulse_zero_us:g}
+mm_per_us = {mm_per_us:g}
+[wing.{name}.control]
+mode = "{mode}"
+"""
+
+
+class GroundStation:
+    """A ground station on a pymavlink connection to a real autopilot's SITL, on its own thread: each turn it
+    calls ``periodic(now)`` (what it sends) and ``take(m)`` for each message; what component 191 (the bridge)
+    says, named values and texts (MAVLink 2 STATUSTEXT chunks joined), is kept. Subclasses set their own
+    fields, then call ``start()``."""
+
+    def __init__(self, mav: Any) -> None:
+        self.mav = mav
+        self.lock = threading.Lock()
+        self.floats: list[tuple[float, str, float]] = []
+        self.texts: list[tuple[float, str]] = []
+        self._last_chunk = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def periodic(self, now: float) -> None:
+        """Sends due at ``now`` (monotonic s)."""
+
+    def take(self, m: Any) -> None:
+        """One received message."""
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.periodic(time.monotonic())
+            try:
+                self.mav.select(0.02)
+                while (m := self.mav.recv_msg()) is not None:
+                    self.take(m)
+                    if m.get_srcComponent() == 191:
+                        self._keep(m)
+            except Exception:  # noqa: BLE001 - the autopilot went away at the end
+                if self._stop.is_set():
+                    return
+                time.sleep(0.05)
+
+    def _keep(self, m: Any) -> None:
+        t = m.get_type()
+        with self.lock:
+            if t == "NAMED_VALUE_FLOAT":
+                self.floats.append((time.monotonic(), m.name, m.value))
+            elif t == "STATUSTEXT":  # MAVLink 2 chunks of a long text share an id: joined here
+                chunk_id = getattr(m, "id", 0)
+                if chunk_id and self.texts and self._last_chunk == chunk_id:
+                    self.texts[-1] = (self.texts[-1][0], self.texts[-1][1] + m.text)
+                else:
+                    self.texts.append((time.monotonic(), m.text))
+                self._last_chunk = chunk_id
+
+    def latest(self, name: str, since: float = 0.0) -> float | None:
+        with self.lock:
+            vals = [v for t, n, v in self.floats if n == name and t >= since]
+        return vals[-1] if vals else None
+
+    def text(self, fragment: str, since: float = 0.0) -> str | None:
+        with self.lock:
+            return next((x for t, x in self.texts if fragment in x and t >= since), None)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.mav.close()
 
 
 class ManualClock:

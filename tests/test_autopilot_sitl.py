@@ -30,13 +30,13 @@ import os
 import socket
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers import GroundStation, sitl_wing_toml, stop_process, wait_for
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 from warpbridge.sitl.maestro_emu import MaestroEmulator
@@ -51,16 +51,6 @@ pytestmark = [
 OWN_PARAMS = "SCHED_LOOP_RATE 100\nSYSID_MYGCS 255\n"  # 50 Hz SERVO_OUTPUT_RAW; RC override from sysid 255
 SERVO_CH = {"left": 0, "right": 1}
 PULSE_ZERO, MM_PER_US = 1200.0, 0.02  # tendon zero at 1200 us: a one-sided tendon, pulls on longer pulses
-
-
-def wait_for(cond: Callable[[], Any], timeout: float, step: float = 0.05) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        got = cond()
-        if got:
-            return got
-        time.sleep(step)
-    return cond()
 
 
 def _port_free(port: int, kind: int) -> bool:
@@ -116,112 +106,47 @@ class ArduPlane:
         assert wait_for(up, timeout), "arduplane did not open its ports"
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        stop_process(self.proc)
         self.log.close()
 
 
-class Gcs:
+class Gcs(GroundStation):
     """A ground station on SERIAL0: heartbeats, RC override, and what component 191 sends."""
 
     def __init__(self, port: int) -> None:
-        self.mav = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255,
-                                              source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER)
-        self.lock = threading.Lock()
+        super().__init__(mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=255,
+                                                    source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER))
         self.stick: int | None = None  # RC 1 override, us
-        self.floats: list[tuple[float, str, float]] = []
-        self.texts: list[tuple[float, str]] = []
         self.params: dict[str, float] = {}
         self.servo1: int | None = None  # the FC's output 1 (aileron), us
-        self._last_chunk = 0
         self.fc_heartbeat = False
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self._next_hb = self._next_rc = 0.0
+        self.start()
 
-    def _run(self) -> None:
-        next_hb = next_rc = 0.0
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if now >= next_hb:
-                next_hb = now + 1.0
-                self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                self.mav.mav.command_long_send(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                               mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, 100000, 0, 0, 0, 0, 0)
-            if self.stick is not None and now >= next_rc:
-                next_rc = now + 0.1
-                self.mav.mav.rc_channels_override_send(1, 1, self.stick, 0, 0, 0, 0, 0, 0, 0)
-            try:
-                self.mav.select(0.05)
-                while (m := self.mav.recv_msg()) is not None:
-                    self._take(m)
-            except Exception:  # noqa: BLE001 - the autopilot went away at the end
-                if self._stop.is_set():
-                    return
-                time.sleep(0.05)
+    def periodic(self, now: float) -> None:
+        if now >= self._next_hb:
+            self._next_hb = now + 1.0
+            self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            self.mav.mav.command_long_send(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                           mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, 100000, 0, 0, 0, 0, 0)
+        if self.stick is not None and now >= self._next_rc:
+            self._next_rc = now + 0.1
+            self.mav.mav.rc_channels_override_send(1, 1, self.stick, 0, 0, 0, 0, 0, 0, 0)
 
-    def _take(self, m: Any) -> None:
+    def take(self, m: Any) -> None:
         t = m.get_type()
         if t == "HEARTBEAT" and m.get_srcComponent() == 1:
             self.fc_heartbeat = True
         if t == "SERVO_OUTPUT_RAW" and m.port == 0:
             self.servo1 = m.servo1_raw
-        if m.get_srcComponent() != 191:
-            return
-        with self.lock:
-            if t == "NAMED_VALUE_FLOAT":
-                self.floats.append((time.monotonic(), m.name, m.value))
-            elif t == "STATUSTEXT":  # MAVLink 2 chunks of a long text share an id: joined here
-                chunk_id = getattr(m, "id", 0)
-                if chunk_id and self.texts and self._last_chunk == chunk_id:
-                    self.texts[-1] = (self.texts[-1][0], self.texts[-1][1] + m.text)
-                else:
-                    self.texts.append((time.monotonic(), m.text))
-                self._last_chunk = chunk_id
-            elif t == "PARAM_VALUE":
+        if t == "PARAM_VALUE" and m.get_srcComponent() == 191:
+            with self.lock:
                 self.params[m.param_id] = m.param_value
-
-    def latest(self, name: str, since: float = 0.0) -> float | None:
-        with self.lock:
-            vals = [v for t, n, v in self.floats if n == name and t >= since]
-        return vals[-1] if vals else None
-
-    def text(self, fragment: str, since: float = 0.0) -> str | None:
-        with self.lock:
-            return next((x for t, x in self.texts if fragment in x and t >= since), None)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.mav.close()
 
 
 def bridge_config(folder: Path, port: int, *, left_source: int = 1, mode: str = "ff") -> Path:
-    wings = []
-    for name in ("left", "right"):
-        wings.append(f"""
-[wing.{name}]
-source_channel = {left_source if name == "left" else 1}
-reverse = {"true" if name == "right" else "false"}
-pwm_min = 1100
-pwm_trim = 1500
-pwm_max = 1900
-max_warp_deg = 8.0
-bias_deg = 2.0
-servo_channel = {SERVO_CH[name]}
-[wing.{name}.servo]
-pulse_min_us = 1000
-pulse_max_us = 2000
-pulse_zero_us = {PULSE_ZERO:g}
-mm_per_us = {MM_PER_US:g}
-[wing.{name}.control]
-mode = "{mode}"
-""")
+    wings = [sitl_wing_toml(name, left_source if name == "left" else 1, name == "right", SERVO_CH[name], mode,
+                            pulse_zero_us=PULSE_ZERO, mm_per_us=MM_PER_US) for name in ("left", "right")]
     cfg = folder / "wb.toml"
     cfg.write_text(f"""
 [link]
@@ -264,12 +189,7 @@ class Bridge:
         return self.stderr.read_text(errors="replace")
 
     def stop(self) -> int:
-        self.proc.terminate()
-        try:
-            rc = self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            rc = self.proc.wait(5)
+        rc = stop_process(self.proc)
         self._err.close()
         self.emu.stop()
         return rc

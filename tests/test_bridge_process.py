@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import helpers
 import pytest
 from helpers import free_udp_port, run_to_end, wait_while_working
 
@@ -40,13 +41,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def wait_for(cond: Callable[[], Any], timeout: float = 10.0, step: float = 0.02) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        time.sleep(step)
-    return cond()
+    return helpers.wait_for(cond, timeout, step)
 
 
 def counts_for_deg(w: float) -> float:

@@ -29,13 +29,13 @@ import socket
 import struct
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers import GroundStation, sitl_wing_toml, stop_process, wait_for
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 
@@ -47,16 +47,6 @@ pytestmark = [
 ]
 
 PX4_MANUAL = 1  # PX4 custom main mode
-
-
-def wait_for(cond: Callable[[], Any], timeout: float, step: float = 0.05) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        got = cond()
-        if got:
-            return got
-        time.sleep(step)
-    return cond()
 
 
 def _udp_free(port: int) -> bool:
@@ -99,73 +89,45 @@ class Px4:
         assert wait_for(up, timeout), "px4 did not start"
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        stop_process(self.proc)
         self.log.close()
 
 
-class Gcs:
+class Gcs(GroundStation):
     """A ground station on PX4's GCS link: heartbeats, the roll stick (MANUAL_CONTROL), what 191 sends."""
 
     def __init__(self, port: int, target: int) -> None:
+        super().__init__(mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255,
+                                                    source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER))
         self.target = target
-        self.mav = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255,
-                                              source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER)
-        self.lock = threading.Lock()
         self.roll: int | None = None  # MANUAL_CONTROL y, -1000..1000
-        self.floats: list[tuple[float, str, float]] = []
-        self.texts: list[tuple[float, str]] = []
         self.params: dict[tuple[int, str], float] = {}
         self.servo3: int | None = None
-        self.base_mode = 0
         self.custom_mode = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self._next_hb = self._next_stick = 0.0
+        self.start()
 
-    def _run(self) -> None:
-        next_hb = next_stick = 0.0
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if now >= next_hb:
-                next_hb = now + 1.0
-                self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-            if self.roll is not None and now >= next_stick:
-                next_stick = now + 0.05
-                self.mav.mav.manual_control_send(self.target, 0, self.roll, 500, 0, 0)
-            try:
-                self.mav.select(0.02)
-                while (m := self.mav.recv_msg()) is not None:
-                    self._take(m)
-            except Exception:  # noqa: BLE001 - the autopilot went away at the end
-                if self._stop.is_set():
-                    return
-                time.sleep(0.05)
+    def periodic(self, now: float) -> None:
+        if now >= self._next_hb:
+            self._next_hb = now + 1.0
+            self.mav.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        if self.roll is not None and now >= self._next_stick:
+            self._next_stick = now + 0.05
+            self.mav.mav.manual_control_send(self.target, 0, self.roll, 500, 0, 0)
 
-    def _take(self, m: Any) -> None:
+    def take(self, m: Any) -> None:
         t = m.get_type()
         comp = m.get_srcComponent()
         if t == "HEARTBEAT" and comp == 1:
-            self.base_mode, self.custom_mode = m.base_mode, m.custom_mode
+            self.custom_mode = m.custom_mode
         if t == "SERVO_OUTPUT_RAW" and m.port == 0:
             self.servo3 = m.servo3_raw
-        with self.lock:
-            if t == "PARAM_VALUE":
-                value = m.param_value
-                if comp == 1 and m.param_type in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT8):
-                    value = struct.unpack("<i", struct.pack("<f", value))[0]  # PX4 packs integers bytewise
+        if t == "PARAM_VALUE":
+            value = m.param_value
+            if comp == 1 and m.param_type in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT8):
+                value = struct.unpack("<i", struct.pack("<f", value))[0]  # PX4 packs integers bytewise
+            with self.lock:
                 self.params[comp, m.param_id] = value
-            if comp != 191:
-                return
-            if t == "NAMED_VALUE_FLOAT":
-                self.floats.append((time.monotonic(), m.name, m.value))
-            elif t == "STATUSTEXT":
-                self.texts.append((time.monotonic(), m.text))
 
     def set_px4_int(self, name: str, value: int) -> None:
         packed = struct.unpack("<f", struct.pack("<i", value))[0]
@@ -175,42 +137,11 @@ class Gcs:
         self.mav.mav.command_long_send(self.target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
                                        mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_MANUAL, 0, 0, 0, 0, 0)
 
-    def latest(self, name: str, since: float = 0.0) -> float | None:
-        with self.lock:
-            vals = [v for t, n, v in self.floats if n == name and t >= since]
-        return vals[-1] if vals else None
-
-    def text(self, fragment: str, since: float = 0.0) -> str | None:
-        with self.lock:
-            return next((x for t, x in self.texts if fragment in x and t >= since), None)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.mav.close()
-
 
 def bridge_config(folder: Path, port: int, left_source: int = 3) -> Path:
-    wings = ""
-    for name, reverse, channel in (("left", "true", 0), ("right", "false", 1)):
-        wings += f"""
-[wing.{name}]
-source_channel = {left_source if name == "left" else 3}
-reverse = {reverse}
-pwm_min = 1000
-pwm_trim = 1500
-pwm_max = 2000
-max_warp_deg = 8.0
-bias_deg = 2.0
-servo_channel = {channel}
-[wing.{name}.servo]
-pulse_min_us = 1000
-pulse_max_us = 2000
-pulse_zero_us = 1200
-mm_per_us = 0.02
-[wing.{name}.control]
-mode = "ff"
-"""
+    # output 3 falls with a roll-right stick: the left wing is the reversed one
+    wings = sitl_wing_toml("left", left_source, True, 0, "ff", pwm=(1000, 1500, 2000)) + \
+        sitl_wing_toml("right", 3, False, 1, "ff", pwm=(1000, 1500, 2000))
     cfg = folder / "wb.toml"
     cfg.write_text(f"""
 [link]
@@ -253,15 +184,6 @@ def run_bridge(folder: Path, port: int, **kw: Any) -> tuple[subprocess.Popen, Pa
                              str(bridge_config(folder, port, **kw))], cwd=folder,
                             stdout=subprocess.DEVNULL, stderr=open(err, "wb"))  # noqa: SIM115
     return proc, err
-
-
-def stop(proc: subprocess.Popen) -> int:
-    proc.terminate()
-    try:
-        return proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait(5)
 
 
 def test_check_finds_the_aileron_on_output_3_and_names_the_elevator(px4, tmp_path):
@@ -317,4 +239,4 @@ def test_bridge_parks_on_the_disarmed_value_then_follows_a_roll_sweep_through_px
         assert "FC autopilot: px4" in err.read_text()
     finally:
         gcs.roll = None
-        assert stop(proc) == 0, err.read_text()[-3000:]
+        assert stop_process(proc) == 0, err.read_text()[-3000:]
