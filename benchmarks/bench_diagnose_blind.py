@@ -544,6 +544,10 @@ def main() -> None:
         print(f"\ndiagnose run time ({len(secs)} timed cases, {args.duration:g} s at {args.rate:g} Hz, plain): "
               f"median {np.median(secs):.1f} s, max {np.max(secs):.1f} s (target < "
               f"{blind_lofo.TARGETS['seconds']:.0f} s); load average now {os.getloadavg()[0]:.1f}")
+        for fam in sorted({r["family"] for r in results}):
+            fs = [r["seconds"] for r in results if r["family"] == fam and r.get("seconds") is not None]
+            if fs:
+                print(f"  {fam:<20} {len(fs):>3} timed: median {np.median(fs):.1f} s, max {np.max(fs):.1f} s")
     print("\nmisattributed (each with its fold's decision):")
     print(blind_lofo.misses(results, folds))
     print(f"\nsingle effects closing less than {blind_lofo.TARGETS['min_closed']:.0%} of their check-log gap:")

@@ -317,20 +317,9 @@ def plant_table(results: list[dict], folds: dict, about: dict[str, str] | None =
 
 
 def _outcomes(rs: list[dict], dk: str) -> dict:
-    t = {"singles": 0, "single_ok": 0, "pairs": 0, "pair_ok": 0, "nones": 0, "false_alarms": 0, "wrong": 0,
-         "nothing": 0}
-    for r in rs:
-        v = verdict_at(r, dk)
-        if not r["truth"]:
-            t["nones"] += 1
-            t["false_alarms"] += bool(v)
-            continue
-        kind = "single" if len(r["truth"]) == 1 else "pair"
-        t[kind + "s"] += 1
-        t[kind + "_ok"] += v == r["truth"]
-        if v != r["truth"]:
-            t["wrong" if v else "nothing"] += 1
-    return t
+    """``rates`` plus the effect cases named wrongly and those named nothing."""
+    missed = [verdict_at(r, dk) for r in rs if r["truth"] and verdict_at(r, dk) != r["truth"]]
+    return rates(rs, dk) | {"wrong": sum(bool(v) for v in missed), "nothing": sum(not v for v in missed)}
 
 
 def check_comparison(with_check: list[dict], without: list[dict], dk: str, carry_factor: float = 2.0) -> str:

@@ -486,15 +486,15 @@ class LugreSheath(Family):
         return self.mu_c * math.radians(self.bend_deg)
 
 
-def _lugre_travel(fam: LugreSheath, w_target: float, speed: float) -> tuple[float | None, float]:
+def _lugre_travel(fam: LugreSheath, w_target: float, speed: float) -> float | None:
     """Travel (mm) at which a steady pull at ``speed`` mm/s from rest reaches ``w_target`` deg (None if it does
-    not within 45 mm), and the lowest tendon tension met."""
+    not within 45 mm)."""
     rate = 100.0
     t = np.arange(int(45.0 / speed * rate)) / rate
     x = speed * t
-    w, t_min, _ = lugre_run(t, x, np.zeros(t.size), 0.0, 0.0, fam.params(), fam.n)
+    w, _, _ = lugre_run(t, x, np.zeros(t.size), 0.0, 0.0, fam.params(), fam.n)
     hit = np.flatnonzero(w >= w_target)
-    return (float(x[hit[0]]) if hit.size else None), t_min
+    return float(x[hit[0]]) if hit.size else None
 
 
 def draw_lugre_sheath(rng: np.random.Generator) -> LugreSheath:
@@ -524,8 +524,8 @@ def draw_lugre_sheath(rng: np.random.Generator) -> LugreSheath:
         # the steady friction must not fall with speed (truth_lugre): the Stribeck drop's steepest slope,
         # 0.858 (mu_s - mu_c) / v_s, stays under 90 % of the viscous slope mu_v / V_REF
         fam.mu_s = min(fam.mu_s, mu_c + 0.9 * fam.mu_v / V_REF * fam.v_s / 0.858)
-        u_lo, _ = _lugre_travel(fam, 2.0, 2.0)
-        u_hi, _ = _lugre_travel(fam, 12.0, 2.0)
+        u_lo = _lugre_travel(fam, 2.0, 2.0)
+        u_hi = _lugre_travel(fam, 12.0, 2.0)
         if u_lo is None or u_hi is None or not 1.0 < u_hi - u_lo < 40.0:
             continue
         # a full cycle at speed (1 Hz over the travel) must keep the tendon taut

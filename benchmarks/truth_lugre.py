@@ -60,7 +60,8 @@ def _substep(p, z, vel, x, h, load0, load1, prm, work) -> None:
     k, theta, t_rest = prm[0], prm[1], prm[2]
     mu_c, mu_s, v_s, s0, s1, mu_v = prm[3], prm[4], prm[5], prm[6], prm[7], prm[8]
     kw, ah, p_rest, mmdeg = prm[9], prm[10], prm[11], prm[12]
-    lo, di, up, rhs, alpha, beta, nrm, p_old = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
+    lo, di, up, rhs, alpha, beta, nrm, p_old, dd = (work[0], work[1], work[2], work[3], work[4], work[5], work[6],
+                                                    work[7], work[8])
     for i in range(n + 1):
         p_old[i] = p[i]
     for i in range(n):
@@ -73,6 +74,7 @@ def _substep(p, z, vel, x, h, load0, load1, prm, work) -> None:
         e = math.exp(-(v / v_s) ** 2)
         g = mu_c + (mu_s - mu_c) * e
         d = 1.0 + h * s0 * a / g if g > 0.0 else 1.0
+        dd[i] = d
         damp = s1 * e
         # phi = alpha + beta * (p_i - p_old_i): z1 = (z0 + dp) / d
         alpha[i] = s0 * z[i] / d + damp * z[i] * (1.0 / d - 1.0) / h
@@ -107,12 +109,7 @@ def _substep(p, z, vel, x, h, load0, load1, prm, work) -> None:
             break
     for i in range(n):
         dp = p[i] - p_old[i]
-        v = vel[i]
-        a = math.sqrt(v * v + EPS_V * EPS_V)
-        e = math.exp(-(v / v_s) ** 2)
-        g = mu_c + (mu_s - mu_c) * e
-        d = 1.0 + h * s0 * a / g if g > 0.0 else 1.0
-        z[i] = (z[i] + dp) / d
+        z[i] = (z[i] + dp) / dd[i]
         vel[i] = dp / h
 
 
@@ -126,7 +123,7 @@ def lugre_run(t, x, q, c0, c1, prm, n):
     p = np.zeros(n + 1)
     z = np.zeros(n)
     vel = np.zeros(n)
-    work = np.zeros((8, n + 1))
+    work = np.zeros((9, n + 1))
     k, t_rest, p_rest, mmdeg = prm[0], prm[2], prm[11], prm[12]
     t_min = t_rest
     # from rest to the first sample's travel, slowly

@@ -48,6 +48,26 @@ def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int:
         return proc.wait(5)
 
 
+def sitl_bridge_toml(connection: str, servo_backend: str, wings: str) -> str:
+    """A bridge config for the real-autopilot tests: 50 Hz servo outputs asked, a 100 Hz loop, 10 Hz
+    telemetry, no sensor, then the wings' tables (``sitl_wing_toml``)."""
+    return f"""
+[link]
+connection = "{connection}"
+servo_rate_hz = 50
+[loop]
+rate_hz = 100
+[telemetry]
+rate_hz = 10
+[params]
+file = "params.json"
+[servo]
+backend = "{servo_backend}"
+[sensor]
+backend = "none"
+""" + wings
+
+
 def sitl_wing_toml(name: str, source: int, reverse: bool, servo_channel: int, mode: str,
                    pwm: tuple[int, int, int] = (1100, 1500, 1900), pulse_zero_us: float = 1200.0,
                    mm_per_us: float = 0.02) -> str:

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import GroundStation, sitl_wing_toml, stop_process, wait_for
+from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_process, wait_for
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 from warpbridge.sitl.maestro_emu import MaestroEmulator
@@ -148,21 +148,7 @@ def bridge_config(folder: Path, port: int, *, left_source: int = 1, mode: str = 
     wings = [sitl_wing_toml(name, left_source if name == "left" else 1, name == "right", SERVO_CH[name], mode,
                             pulse_zero_us=PULSE_ZERO, mm_per_us=MM_PER_US) for name in ("left", "right")]
     cfg = folder / "wb.toml"
-    cfg.write_text(f"""
-[link]
-connection = "tcp:127.0.0.1:{port}"
-servo_rate_hz = 50
-[loop]
-rate_hz = 100
-[telemetry]
-rate_hz = 10
-[params]
-file = "params.json"
-[servo]
-backend = "maestro:{folder / 'maestro'}"
-[sensor]
-backend = "none"
-""" + "".join(wings))
+    cfg.write_text(sitl_bridge_toml(f"tcp:127.0.0.1:{port}", f"maestro:{folder / 'maestro'}", "".join(wings)))
     return cfg
 
 

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import GroundStation, sitl_wing_toml, stop_process, wait_for
+from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_process, wait_for
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 
@@ -143,21 +143,7 @@ def bridge_config(folder: Path, port: int, left_source: int = 3) -> Path:
     wings = sitl_wing_toml("left", left_source, True, 0, "ff", pwm=(1000, 1500, 2000)) + \
         sitl_wing_toml("right", 3, False, 1, "ff", pwm=(1000, 1500, 2000))
     cfg = folder / "wb.toml"
-    cfg.write_text(f"""
-[link]
-connection = "udpin:127.0.0.1:{port}"
-servo_rate_hz = 50
-[loop]
-rate_hz = 100
-[telemetry]
-rate_hz = 10
-[params]
-file = "params.json"
-[servo]
-backend = "loop:"
-[sensor]
-backend = "none"
-""" + wings)
+    cfg.write_text(sitl_bridge_toml(f"udpin:127.0.0.1:{port}", "loop:", wings))
     return cfg
 
 
