@@ -96,8 +96,9 @@ def centre_line(config: Config) -> tuple[float, float, float] | None:
         scale = float(friction.get("friction_scale", 1.0))
         pivot = float(friction.get("friction_pivot", 0.0))
         shift = _friction_shift(doc["params"], scale, pivot) if scale != 1.0 else 0.0
-        if doc.get("effect_forms", 1) == 1:  # the earlier forms: the shift was folded before the gain
-            shift /= gain
+        whole_loop = float(pt.get("pretension_loop", 0.0)) == 1.0  # the band scaled with the backbone
+        if doc.get("effect_forms", 1) == 1 or whole_loop:  # the earlier forms, or the whole loop: the shift
+            shift /= gain  # is folded after the gain scaled az
     except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError, ZeroDivisionError,
             OverflowError):
         return None

@@ -6,8 +6,9 @@ the measured warp for any ``Effects`` with the same operators, in the same
 order, as ``model.plant.Plant.simulate``, and caches the expensive part (the
 Bouc-Wen forward map, which depends only on the input-side effects, the
 capstan stall among them, and the friction scale and pivot). An effect with several
-forms (friction: the band scaled, or the capstan stall; ``forms_for``) is
-fitted in each and the form with the lower training error kept.
+forms (friction: the band scaled, or the capstan stall; pre-tension: the
+backbone moved alone, or the whole loop; ``forms_for``) is fitted in each and
+the form with the lower training error kept.
 
 The output side is affine in the linear parameters (aero load gain and offset,
 drift), even through the sensor lag, which is a linear filter::
@@ -59,6 +60,7 @@ from warpbridge.model.effects import (
     drift_shape,
     dynamic_pressure_kpa,
     form_fields,
+    form_parameters,
     sensor_filtered,
 )
 from warpbridge.model.identify import reversal_indices, warmup_end
@@ -70,8 +72,8 @@ log = logging.getLogger(__name__)
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
-INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "friction_scale",
-                "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm", "friction_pivot")
+INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "pretension_loop",
+                "friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm", "friction_pivot")
 
 
 # ---- the train / score split -------------------------------------------------------------------
@@ -187,6 +189,7 @@ class Box:
     neutral_at_hi: bool = False  # rate limit: the top of the box means "no limit"
     neutral_at_lo: bool = False  # capstan ratio, sensor stage ratio: the bottom of the box means "none" (0)
     grid_like: str | None = None  # on the starting grid, take the coordinate of this (earlier) box
+    fixed: bool = False  # a form's flag: held at ``lo``, not searched (pre-tension's whole-loop form)
 
     def value(self, s: float) -> float:
         s = min(max(float(s), 0.0), 1.0)
@@ -247,9 +250,13 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
 def forms_for(name: str, t: np.ndarray, u: np.ndarray) -> list[list[Box]]:
     """The alternative forms of an effect, each a list of boxes; the fit keeps the form that fits best.
     Friction has two: the band of z scaled, and the capstan stall (``model.effects``); a stall fitted flat
-    is not kept (``form_supported``)."""
+    is not kept (``form_supported``). Pre-tension has two with the same parameters: the backbone moved
+    alone, and the whole loop (its fixed flag ``pretension_loop``)."""
     if name == "friction":
         return [boxes_for("friction", t, u), boxes_for("capstan", t, u)]
+    if name == "pretension":
+        own = boxes_for(name, t, u)
+        return [own + [Box("pretension_loop", float(loop), float(loop), fixed=True)] for loop in (0, 1)]
     return [boxes_for(name, t, u)]
 
 
@@ -540,14 +547,15 @@ class Problem:
 
     def _fit_form(self, names, movers, forms, start: Effects, lin, max_evals: int, grid_for: str) -> Fit:
         """``fit`` with one form per moving effect; the fields of a mover's other forms go back to the nominal's."""
-        boxes = [b for form in forms for b in form]
-        own = {b.field for b in boxes}
+        boxes = [b for form in forms for b in form if not b.fixed]
+        flags = {b.field: b.lo for form in forms for b in form if b.fixed}
+        own = {b.field for b in boxes} | set(flags)
         reset = {f: getattr(self.base, f) for n in movers for f in EFFECT_FIELDS[n][0]
                  if f not in own and f not in lin}
-        start = replace(start, **reset)
-        params_of = {n: len(form_fields(n, start)) for n in names}  # held effects: the form they carry
+        start = replace(start, **reset, **flags)
+        params_of = {n: form_parameters(n, start) for n in names}  # held effects: the form they carry
         for n, form in zip(movers, forms, strict=True):
-            params_of[n] = len(form) + len(linear_fields(n))
+            params_of[n] = sum(not b.fixed for b in form) + len(linear_fields(n))
         tm = self.split.train
 
         def build(s: np.ndarray) -> Effects:

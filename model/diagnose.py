@@ -647,6 +647,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         notes.append(h["meaning"])
     by_airspeed = [{"effect": b} | r for b, r in path.kept_by_airspeed.items()]
     notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
+    notes += whole_loop_notes(selected, cur.effects)
     notes += [airspeed_note(b) for b in by_airspeed]
     residual_is_noise = white.passed and indep.passed
     if not selected and not residual_is_noise:
@@ -725,6 +726,20 @@ def tension_band_notes(selected: list[str], airspeed_checked: bool = False) -> l
                          f"the {' / '.join(band)} change may be the {cause}'s consequence rather than a change "
                          f"of its own; to tell them apart, {check}")
     return notes
+
+
+def whole_loop_notes(selected: list[str], eff: Effects) -> list[str]:
+    """A note for a pre-tension named in its whole-loop form: the band scaled with the backbone, which a
+    re-tensioned rig and a sheath whose bend changed both do (capstan law), so the cause is the user's to
+    tell apart."""
+    if "pretension" not in selected or not eff.pretension_loop:
+        return []
+    g = eff.pretension_gain
+    return [f"pretension named in its whole-loop form: the hysteresis band scaled with the backbone (x{1.0 / g:.2f} "
+            f"in tendon travel), as the friction of a sheath follows its tension; a rig re-tensioned or pulling a "
+            f"{'stiffer' if g < 1.0 else 'softer'} wing does that, and so does a sheath whose bend or routing "
+            f"changed (more wrap: the far end loses more of the pull, band and compliance alike); to tell them "
+            f"apart, compare the sheath's routing and the tendon's tension at rest with the bench's"]
 
 
 def gain_by_airspeed(w: np.ndarray, w_without: np.ndarray, w_with: np.ndarray, q: np.ndarray,

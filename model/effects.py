@@ -4,7 +4,8 @@ Each effect of the design brief's table is one operator with one or two
 parameters, placed where it acts physically. The augmented plant is the chain::
 
     u_cmd -> delay -> rate_limit -> slack (backlash + capstan stall) -> Bouc-Wen forward
-          (pre-tension moves its backbone, friction scales the band of z) -> aero_load -> w_true
+          (pre-tension moves its backbone or the whole loop, friction scales the band of z) -> aero_load
+          -> w_true
           -> sensor_lag -> drift -> w_meas
 
 | name        | parameters                     | operator                                             |
@@ -15,7 +16,8 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | friction    | friction_scale, friction_pivot | the loop widens or narrows about a level inside it,  |
 |             | capstan_pull_ratio, _release_  | or a stall at each reversal growing with the tension |
 |             | ratio, capstan_zero_mm         |                                                      |
-| pretension  | pretension_offset_mm, _gain    | backbone u = offset + (a1 w^2 + a2 w + a3) / gain    |
+| pretension  | pretension_offset_mm, _gain    | backbone u = offset + (a1 w^2 + a2 w + a3) / gain,   |
+|             | (pretension_loop: its form)    | or the whole loop, band az z included                |
 | sensor_lag  | sensor_tau_s, _stage_ratio     | first-order lag of the warp measurement, or two in   |
 |             |                                | cascade (the second ratio * tau)                     |
 | drift       | drift_deg_s, drift_tau_s       | w_meas += drift_deg_s * tau (1 - exp(-(t - t0)/tau)) |
@@ -51,13 +53,19 @@ the other way when releasing). Backlash is the same play with a fixed half-width
 ``backlash_mm / 2`` added to both edges. The diagnosis fits both forms of
 ``friction`` and keeps the one that explains the log better.
 
-Pre-tension moves the elastic backbone and nothing else: the rig's rest
-position shifts by ``offset`` in tendon travel and its compliance scales by
-``1 / gain`` (a stiffer or slacker rig), ``u = offset + (a1 w^2 + a2 w + a3) /
-gain + az z``; the friction band ``az z`` stays, so a change of the loop's width
-is the friction effect's alone. (The online adapter and the pre-flight
-recalibration use the command-side rigging ``fold_rigging`` instead, which
-scales the whole map.)
+Pre-tension has two forms too. In the first it moves the elastic backbone and
+nothing else: the rig's rest position shifts by ``offset`` in tendon travel and
+its compliance scales by ``1 / gain`` (a stiffer or slacker rig), ``u = offset
++ (a1 w^2 + a2 w + a3) / gain + az z``; the friction band ``az z`` stays, as in
+a rig whose friction does not depend on its tension. In a sheath it does: the
+capstan law makes the friction force, so the travel it takes up, proportional
+to the tension, and a rig pulled harder for the same warp (a stiffer wing) has
+a band as much wider. The second form (``pretension_loop = 1``) scales the whole
+loop, ``u = offset + (a1 w^2 + a2 w + a3 + az z) / gain``, the command-side
+rigging ``fold_rigging`` that the online adapter and the pre-flight
+recalibration estimate. Either way the offset and the gain are its two
+parameters; the diagnosis fits both forms and keeps the one that explains the
+log better.
 
 The drift is a sensor zero warming up: it starts at ``drift_deg_s`` deg/s and
 settles with time constant ``drift_tau_s``; ``drift_tau_s = inf`` (the default,
@@ -92,14 +100,18 @@ EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
                  (1.0, 0.0, 0.0, 0.0, 0.0),
                  "sheath friction changed: the hysteresis widens or narrows, or a stall after each reversal "
                  "grows with the tension"),
-    "pretension": (("pretension_offset_mm", "pretension_gain"), (0.0, 1.0),
-                   "pre-tension changed: the elastic backbone shifts in tendon travel and its slope scales"),
+    "pretension": (("pretension_offset_mm", "pretension_gain", "pretension_loop"), (0.0, 1.0, 0.0),
+                   "pre-tension changed: the elastic backbone (or the whole loop) shifts in tendon travel and "
+                   "its slope scales"),
     "sensor_lag": (("sensor_tau_s", "sensor_stage_ratio"), (0.0, 0.0),
                    "the warp sensor's own dynamics: a first-order lag, or two lags in cascade"),
     "drift": (("drift_deg_s", "drift_tau_s"), (0.0, math.inf), "slow drift of the warp sensor's zero over the log"),
     "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
                   "airspeed-dependent load on the trailing edge: warp lost in proportion to dynamic pressure"),
 }
+
+
+FORM_FLAGS = ("pretension_loop",)  # fields that choose a form: written with it, not fitted, not counted
 
 
 @dataclass(frozen=True)
@@ -116,6 +128,7 @@ class Effects:
     friction_pivot: float = 0.0  # the level of the band a friction scale keeps: 0 middle, +-1 its edges
     pretension_offset_mm: float = 0.0
     pretension_gain: float = 1.0
+    pretension_loop: float = 0.0  # the form: 0 the backbone moves alone, 1 the whole loop (band included)
     sensor_tau_s: float = 0.0
     sensor_stage_ratio: float = 0.0  # a second lag in cascade, its time constant per sensor_tau_s (0: none)
     drift_deg_s: float = 0.0
@@ -147,6 +160,8 @@ class Effects:
             raise ValueError("friction pivot must be in [-1, 1]: a level inside the hysteresis band")
         if self.friction_scale == 1.0:  # an unchanged band has no level to keep
             object.__setattr__(self, "friction_pivot", 0.0)
+        if self.pretension_loop not in (0.0, 1.0):
+            raise ValueError("pretension_loop is a form: 0 (the backbone alone) or 1 (the whole loop)")
         if not 0.0 <= self.sensor_stage_ratio <= 1.0:
             raise ValueError("sensor stage ratio must be in [0, 1]: the second lag is the shorter one")
         if self.sensor_tau_s == 0.0:  # no lag, no second stage
@@ -181,8 +196,8 @@ class Effects:
     def active(self) -> list[str]:
         """Names of the effects whose parameters differ from neutral."""
         out = []
-        for name, (names, neutral, _) in EFFECT_FIELDS.items():
-            if any(getattr(self, f) != v for f, v in zip(names, neutral, strict=True)):
+        for name, (names, neutral, _) in EFFECT_FIELDS.items():  # a form flag alone changes nothing
+            if any(getattr(self, f) != v for f, v in zip(names, neutral, strict=True) if f not in FORM_FLAGS):
                 out.append(name)
         return out
 
@@ -205,8 +220,9 @@ class Effects:
 
     def to_dict(self) -> dict[str, dict[str, float]]:
         """{effect name: {parameter: value}} for the active effects; an infinite value (no limit, a steady
-        ramp) is left out, which reads back as the same."""
-        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0] if math.isfinite(getattr(self, f))}
+        ramp) and a form flag at its first form are left out, which reads back as the same."""
+        return {name: {f: getattr(self, f) for f in EFFECT_FIELDS[name][0]
+                       if math.isfinite(getattr(self, f)) and not (f in FORM_FLAGS and getattr(self, f) == 0.0)}
                 for name in self.active()}
 
     @classmethod
@@ -236,10 +252,18 @@ CAPSTAN_FIELDS = ("capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_m
 
 
 def form_fields(name: str, eff: Effects) -> tuple[str, ...]:
-    """The parameters of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its band scale."""
+    """The fields of effect ``name`` in the form ``eff`` uses: friction's capstan stall or its band scale;
+    pre-tension's offset and gain, with its form flag when it moves the whole loop."""
     if name == "friction":
         return CAPSTAN_FIELDS if eff.has_capstan else BAND_FIELDS
+    if name == "pretension" and not eff.pretension_loop:
+        return tuple(f for f in EFFECT_FIELDS[name][0] if f not in FORM_FLAGS)
     return EFFECT_FIELDS[name][0]
+
+
+def form_parameters(name: str, eff: Effects) -> int:
+    """How many parameters effect ``name`` has in the form ``eff`` uses (its form flag is not one)."""
+    return sum(f not in FORM_FLAGS for f in form_fields(name, eff))
 
 
 def friction_core(params, scale: float, pivot: float = 0.0):
@@ -261,18 +285,21 @@ def friction_core(params, scale: float, pivot: float = 0.0):
     return replace(params, b=tuple(k * x for x in params.b), a3=params.a3 + params.az * (1.0 - scale) * z_fix)
 
 
-def pretension_core(params, offset: float, gain: float):
+def pretension_core(params, offset: float, gain: float, whole_loop: bool = False):
     """Bouc-Wen parameters with a pre-tension change folded in: the elastic backbone shifts by ``offset``
     in tendon travel and its compliance scales by ``1 / gain`` (u = offset + (a1 w^2 + a2 w + a3) / gain
-    + az z); the friction band az z stays as it was (that is the ``friction`` effect)."""
+    + az z); the friction band az z stays as it was, unless ``whole_loop``, when it scales with the
+    backbone (u = offset + (a1 w^2 + a2 w + a3 + az z) / gain: friction in proportion to the tension)."""
     if gain == 1.0 and offset == 0.0:
         return params
-    return replace(params, a1=params.a1 / gain, a2=params.a2 / gain, a3=params.a3 / gain + offset)
+    az = params.az / gain if whole_loop else params.az
+    return replace(params, a1=params.a1 / gain, a2=params.a2 / gain, a3=params.a3 / gain + offset, az=az)
 
 
 def core_params(params, eff: Effects):
     """The Bouc-Wen parameters the augmented plant runs: pre-tension and friction folded in."""
-    return friction_core(pretension_core(params, eff.pretension_offset_mm, eff.pretension_gain),
+    return friction_core(pretension_core(params, eff.pretension_offset_mm, eff.pretension_gain,
+                                         bool(eff.pretension_loop)),
                          eff.friction_scale, eff.friction_pivot)
 
 
@@ -282,7 +309,7 @@ def fold_rigging(params, offset: float, gain: float, friction_scale: float = 1.0
     adapter and the pre-flight recalibration estimate (their command transform ``u_cmd = offset +
     u_ff / gain`` inverts it exactly). Exact: u_eff = gain (u - offset) in front of u_eff = a1 w^2 + a2 w +
     a3 + az z is the model with a_i / gain, a3 / gain + offset and az / gain; z's dynamics do not depend
-    on u. (The ``pretension`` effect moves only the backbone: ``core_params``.)"""
+    on u. (The ``pretension`` effect in its whole-loop form, friction after it: ``core_params``.)"""
     if not (gain > 0 and friction_scale > 0 and math.isfinite(offset)):
         raise ValueError("gain and friction scale must be positive, offset finite")
     if gain == 1.0 and offset == 0.0 and friction_scale == 1.0:

@@ -633,6 +633,16 @@ def test_a_band_effect_named_with_a_tension_change_is_flagged_as_its_possible_co
         assert tension_band_notes(alone) == []
 
 
+def test_a_pretension_of_the_whole_loop_form_says_what_else_scales_a_loop_so():
+    from warpbridge.model.diagnose import whole_loop_notes
+
+    whole = Effects(pretension_offset_mm=0.4, pretension_gain=0.8, pretension_loop=1.0)
+    (note,) = whole_loop_notes(["pretension"], whole)
+    assert "whole-loop" in note and "x1.25" in note and "stiffer" in note and "bend" in note
+    assert whole_loop_notes(["friction"], whole) == []  # not named: nothing to say
+    assert whole_loop_notes(["pretension"], Effects(pretension_offset_mm=0.4, pretension_gain=0.8)) == []
+
+
 def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the_load_is_the_loads():
     from warpbridge.model.diagnose import gain_by_airspeed, grows_with_load
 

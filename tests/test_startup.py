@@ -90,6 +90,13 @@ def test_the_quick_read_of_the_model_file_matches_the_full_one(tmp_path):
     pivoted = load_model(cfg)
     assert pivoted.a3 != pytest.approx(full.a3, rel=1e-6)
     assert centre_line(cfg) == pytest.approx((pivoted.a1, pivoted.a2, pivoted.a3), rel=1e-12)
+    # pre-tension in its whole-loop form: the band scales with the backbone, the friction shift after it
+    path.write_text(json.dumps(ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1,
+                                                        pretension_loop=1.0, friction_scale=1.3,
+                                                        friction_pivot=-0.7)).to_dict()))
+    looped = load_model(cfg)
+    assert looped.a3 != pytest.approx(pivoted.a3, rel=1e-6)
+    assert centre_line(cfg) == pytest.approx((looped.a1, looped.a2, looped.a3), rel=1e-12)
     # a file of the earlier effect forms (no "effect_forms" mark): the quick read follows the full one
     doc = ModelFile(model, Effects(pretension_offset_mm=0.6, pretension_gain=1.1, friction_scale=1.3)).to_dict()
     del doc["effect_forms"]
