@@ -269,3 +269,19 @@ def spread_friction(x: np.ndarray, span: float, friction: float = 1.0) -> np.nda
     stack of plays on the tendon travel. Each stretch of sheath slips at a force in proportion to its friction, so
     a ``friction`` change scales every play's width (and with it what each can hold)."""
     return sum(c * (x - play_written_out(x, friction * f * span)) for c, f in SHEATH_PLAYS)
+
+
+def feedforward_rms(params, wing_effects, model_effects, seed: int = 2, skip: int = 200) -> float:
+    """RMS (deg) of setpoint minus true warp when a feed-forward built on ``model_effects`` drives a wing with
+    ``wing_effects`` (both on Bouc-Wen ``params``) along a 12 s random warp setpoint at 100 Hz, after ``skip``
+    samples."""
+    from warpbridge.model.compensation import Compensator
+    from warpbridge.model.excitation import filtered_random
+    from warpbridge.model.plant import Plant, PlantStepper
+
+    t = np.arange(0, 12, 0.01)
+    w_sp = filtered_random(t, 1.0, 3.0, offset=7.0, seed=seed)
+    comp = Compensator(Plant(params, model_effects), w0=w_sp[0])
+    wing = PlantStepper(Plant(params, wing_effects), t[0], comp.step(w_sp[0]))
+    err = [wing.step(t[k], comp.step(w_sp[k]))[0] - w_sp[k] for k in range(1, t.size)]
+    return float(np.sqrt(np.mean(np.square(err[skip:]))))

@@ -5,19 +5,20 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 
 import numpy as np
 import pytest
+from helpers import feedforward_rms
 
 from warpbridge.bridge.commands.effects_spec import parse_effects
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
-from warpbridge.model.compensation import Compensator
 from warpbridge.model.diag_fit import Problem
 from warpbridge.model.effects import BAND_FIELDS, CAPSTAN_FIELDS, EFFECT_FIELDS, Effects, core_params, form_fields
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import ModelFile
-from warpbridge.model.plant import Plant, PlantStepper
+from warpbridge.model.plant import Plant
 
 P = BoucWenParams.paper()
 
@@ -75,15 +76,7 @@ def test_the_model_file_and_the_effects_switch_carry_the_pivot():
 
 def test_the_feed_forward_inverts_a_pivoted_friction_change():
     eff = Effects(friction_scale=1.4, friction_pivot=0.8)
-    t = np.arange(0, 12, 0.01)
-    w_sp = filtered_random(t, 1.0, 3.0, offset=7.0, seed=2)
-
-    def rms_error(model_effects: Effects) -> float:
-        comp = Compensator(Plant(P, model_effects), w0=w_sp[0])
-        wing = PlantStepper(Plant(P, eff), t[0], comp.step(w_sp[0]))
-        err = [wing.step(t[k], comp.step(w_sp[k]))[0] - w_sp[k] for k in range(1, t.size)]
-        return float(np.sqrt(np.mean(np.square(err[200:]))))
-
+    rms_error = partial(feedforward_rms, P, eff)
     exact, unpivoted = rms_error(eff), rms_error(Effects(friction_scale=1.4))
     assert exact < 0.02
     assert unpivoted > 5 * max(exact, 0.01)

@@ -4,19 +4,20 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 
 import numpy as np
 import pytest
+from helpers import feedforward_rms
 
 from warpbridge.bridge.commands.effects_spec import parse_effects
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
-from warpbridge.model.compensation import Compensator
 from warpbridge.model.diag_fit import Problem
 from warpbridge.model.effects import Effects, core_params, form_fields, form_parameters
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import ModelFile
-from warpbridge.model.plant import Plant, PlantStepper
+from warpbridge.model.plant import Plant
 
 P = BoucWenParams.paper()
 
@@ -65,15 +66,7 @@ def test_the_form_flag_is_checked_carried_and_alone_changes_nothing():
 
 def test_the_feed_forward_inverts_the_whole_loop_form():
     eff = Effects(pretension_offset_mm=0.5, pretension_gain=1.3, pretension_loop=1.0)
-    t = np.arange(0, 12, 0.01)
-    w_sp = filtered_random(t, 1.0, 3.0, offset=7.0, seed=2)
-
-    def rms_error(model_effects: Effects) -> float:
-        comp = Compensator(Plant(P, model_effects), w0=w_sp[0])
-        wing = PlantStepper(Plant(P, eff), t[0], comp.step(w_sp[0]))
-        err = [wing.step(t[k], comp.step(w_sp[k]))[0] - w_sp[k] for k in range(1, t.size)]
-        return float(np.sqrt(np.mean(np.square(err[200:]))))
-
+    rms_error = partial(feedforward_rms, P, eff)
     exact = rms_error(eff)
     backbone_only = rms_error(Effects(pretension_offset_mm=0.5, pretension_gain=1.3))
     assert exact < 0.02
