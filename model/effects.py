@@ -290,10 +290,11 @@ def pretension_core(params, offset: float, gain: float, whole_loop: bool = False
     in tendon travel and its compliance scales by ``1 / gain`` (u = offset + (a1 w^2 + a2 w + a3) / gain
     + az z); the friction band az z stays as it was, unless ``whole_loop``, when it scales with the
     backbone (u = offset + (a1 w^2 + a2 w + a3 + az z) / gain: friction in proportion to the tension)."""
+    if whole_loop:
+        return fold_rigging(params, offset, gain)
     if gain == 1.0 and offset == 0.0:
         return params
-    az = params.az / gain if whole_loop else params.az
-    return replace(params, a1=params.a1 / gain, a2=params.a2 / gain, a3=params.a3 / gain + offset, az=az)
+    return replace(params, a1=params.a1 / gain, a2=params.a2 / gain, a3=params.a3 / gain + offset)
 
 
 def core_params(params, eff: Effects):
