@@ -1,7 +1,7 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
-    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel] [--threads 2] [--seed 2]
-                                             [--cases 10,12] [--repeats 1] [--cache DIR]
+    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms] [--threads 2]
+                                             [--seed 2] [--cases 10,12] [--families ...] [--repeats 1] [--cache DIR]
 
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
 by side) against ``--threads`` threads (``--jobs N``; the command's default is the cores free at its start).
@@ -10,14 +10,18 @@ every evaluation (the code before they were cached), both on one thread. ``--com
 correction's loop-shape terms stretched in travel with a friction band (as shipped: their input terms computed
 again for every band a fit tries) against kept on the bench's travel scale (the code before; their height
 still scales), both on one thread; the verdicts are compared, the reports differ by design.
+``--compare time-terms``: the correction's rate and lag terms from weights kept per log (``model_error.TimeTerms``:
+each lag's step factors, ``np.gradient``'s weights) and its play states in one compiled pass (as shipped) against
+the code before (a lag recomputing exp(-dt / tau) at every sample, ``np.gradient`` and a median of the steps at
+every evaluation, one play after another), both on one thread; the reports must be identical.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant 0 of each family at ``--seed``, the case
-numbers given; 10-12 are its pairs, the slowest), the bench models from its cache (identified there when
-missing). Each case runs plain ``diagnose`` through ``bridge.cli.main`` once per variant and repeat, the
-variants alternating in order, one process at a time. The report must be the same either way (checked:
-the verdict, every fitted parameter and every candidate's figures; only the count of core runs may differ
-between thread counts, each thread caching its own); the table gives each case's times and their ratio,
-then the median ratio and the slowest time per variant.
+numbers given; 10-12 are its pairs, usually the slowest; all six families unless ``--families``), the bench
+models from its cache (identified there when missing). Each case runs plain ``diagnose`` through
+``bridge.cli.main`` once per variant and repeat, the variants alternating in order, one process at a time. The
+report must be the same either way (checked: the verdict, every fitted parameter and every candidate's
+figures; only the count of core runs may differ between thread counts, each thread caching its own); the table
+gives each case's times and their ratio, then the median ratio and the slowest time per variant.
 """
 
 from __future__ import annotations
@@ -39,8 +43,9 @@ import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
 from warpbridge.model import model_error  # noqa: E402
+from warpbridge.model.effects import lagged, play  # noqa: E402
 
-FAMILIES = ("bouc-wen", "bouc-wen-phys", "dahl", "prandtl-ishlinskii", "sheath")
+FAMILIES = ("bouc-wen", "bouc-wen-phys", "dahl", "prandtl-ishlinskii", "sheath", "lugre-sheath")
 
 
 def _recomputed(self, x: np.ndarray, band: float = 1.0) -> tuple:
@@ -57,6 +62,39 @@ def _bench_travel(self, x: np.ndarray, band: float = 1.0) -> tuple:
     return _SHIPPED_INPUT_TERMS(self, x, 1.0)
 
 
+def _old_lag_states(t, w, rate_scale, terms=None):
+    """The baseline of ``--compare time-terms``: each lag run on its own, exp(-dt / tau) at every sample."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    out = np.empty((w.size, len(model_error.LAG_TIMES_S)))
+    for j, tau in enumerate(model_error.LAG_TIMES_S):
+        out[:, j] = (lagged(t, w, tau, float(w[0])) - w) / (rate_scale * tau)
+    return out
+
+
+def _old_smooth_rate(t, w, terms=None):
+    """The baseline of ``--compare time-terms``: ``np.gradient`` and the median step at every call."""
+    r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    k = max(1, int(round(model_error.RATE_SMOOTH_S / max(dt, 1e-9))))
+    if k > 1:
+        r = np.convolve(r, np.ones(k) / k, mode="same")
+    return r
+
+
+def _old_play_states(x, thresholds):
+    """The baseline of ``--compare time-terms``: one ``model.effects.play`` after another."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    out = np.empty((x.size, len(thresholds)))
+    for j, r in enumerate(thresholds):
+        out[:, j] = (x - play(x, 2.0 * float(r), float(x[0]))) / r
+    return out
+
+
+_TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smooth_rate,
+                        "play_states": _old_play_states}
+
+
 def _strip(report: dict) -> dict:
     return {k: v for k, v in report.items() if k not in ("seconds", "created", "model_evaluations")}
 
@@ -65,11 +103,15 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
                    ) -> tuple[float, dict]:
     """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline."""
     cached = model_error.ErrorModel._input_terms
+    shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
     jobs = threads if compare == "threads" and new else 1
     if compare == "input-terms" and not new:
         model_error.ErrorModel._input_terms = _recomputed
     if compare == "band-travel" and not new:
         model_error.ErrorModel._input_terms = _bench_travel
+    if compare == "time-terms" and not new:
+        for name, fn in _TIME_TERMS_BASELINE.items():
+            setattr(model_error, name, fn)
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -77,6 +119,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         seconds = time.perf_counter() - t0
     finally:
         model_error.ErrorModel._input_terms = cached
+        for name, fn in shipped.items():
+            setattr(model_error, name, fn)
     if code != 0:
         raise RuntimeError(f"diagnose failed: {text}")
     return seconds, _strip(json.loads(out.read_text()))
@@ -84,13 +128,15 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel"), default="threads",
+    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms"), default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
-                         "against kept on the bench's travel scale")
+                         "against kept on the bench's travel scale; time-terms: the rate and lag terms from weights "
+                         "kept per log and the plays in one pass against recomputed at every evaluation")
     ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
+    ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=blind.default_cache())
     a = ap.parse_args(argv)
@@ -99,11 +145,13 @@ def main(argv: list[str] | None = None) -> int:
     cases = [int(c) for c in a.cases.split(",")]
     rows = []
     base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
-                           "band-travel": ("bench travel", "stretched")}[a.compare]
+                           "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
-                           "scale (baseline), one thread"}[a.compare]
+                           "scale (baseline), one thread",
+            "time-terms": "rate and lag terms from weights kept per log, plays in one pass (shipped) vs recomputed "
+                          "at every evaluation (baseline), one thread"}[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
     print(f"diagnose, 60 s at 500 Hz: {what}; seed {a.seed}, plant 0 of each family, cases {a.cases}, "
@@ -113,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
           flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        for n, family in enumerate(FAMILIES):
+        for n, family in enumerate(f for f in a.families.split(",") if f):
             plant = draw_plants(a.seed, family, 1)[0]
             model = blind.identified_model(plant, a.seed, 0, args, work)
             drawn = blind.draw_cases(a.seed, family, 0, 2, 3)

@@ -30,6 +30,12 @@ linear combination of features of where the hysteresis is::
   set is only its first-order Taylor term, and a latency of tens of ms over
   a fast bench input needs more).
 
+What the rate and lag terms take from the sample times alone (each lag's
+step factors, ``np.gradient``'s weights) is kept per log (``TimeTerms``), and
+the plays run in one compiled pass: a diagnosis evaluates the correction on
+thousands of paths of one log, and the results are bit for bit those of the
+plain operators.
+
 Nested feature sets and a ridge penalty are chosen by blocked cross-validation
 on the bench log, so noise is not learned as structure; the cross-validated
 RMS after the correction is what the model is still known to get wrong.
@@ -58,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbridge.model._jit import njit
-from warpbridge.model.effects import lagged, play
+from warpbridge.model.effects import slack_step
 
 _CACHE_LOCK = threading.Lock()  # guards every ErrorModel's input-terms cache
 
@@ -118,10 +124,21 @@ def travel_since_reversal(x, eps):
 def play_states(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """Normalised play-operator states (x - p_r) / r in [-1, 1] per sample (rows) and threshold r (columns);
     each play (``model.effects.play`` of total width 2 r) starts relaxed at the first sample."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    out = np.empty((x.size, len(thresholds)))
-    for j, r in enumerate(thresholds):
-        out[:, j] = (x - play(x, 2.0 * float(r), float(x[0]))) / r
+    return _play_states(np.ascontiguousarray(x, dtype=np.float64),
+                        np.ascontiguousarray(thresholds, dtype=np.float64))
+
+
+@njit(cache=True)
+def _play_states(x, thresholds):
+    """``play_states`` in one compiled pass: the same steps as ``model.effects.play`` per threshold."""
+    n = x.shape[0]
+    out = np.empty((n, thresholds.shape[0]))
+    for j in range(thresholds.shape[0]):
+        r = thresholds[j]
+        y = x[0] if n else 0.0
+        for k in range(n):
+            y = slack_step(x[k], y, r, 0.0, 0.0, 0.0)
+            out[k, j] = (x[k] - y) / r
     return out
 
 
@@ -129,15 +146,70 @@ def _plays(x: np.ndarray, x_span: float) -> np.ndarray:
     return play_states(x, np.asarray(PLAY_THRESHOLDS, dtype=np.float64) * x_span)
 
 
-def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float) -> np.ndarray:
-    """(lag_tau(w) - w) / (rate_scale tau) per sample (rows) and time constant tau of ``LAG_TIMES_S`` (columns);
-    each lag starts settled on the first sample (about -w' / rate_scale for slow motion)."""
-    t = np.ascontiguousarray(t, dtype=np.float64)
-    w = np.ascontiguousarray(w, dtype=np.float64)
-    out = np.empty((w.size, len(LAG_TIMES_S)))
-    for j, tau in enumerate(LAG_TIMES_S):
-        out[:, j] = (lagged(t, w, tau, float(w[0])) - w) / (rate_scale * tau)
+@dataclass(frozen=True)
+class TimeTerms:
+    """What the rate and lag terms take from the sample times alone (the same for every path of a log):
+    each lag's step factors exp(-dt / tau), ``np.gradient``'s weights and the rate's smoothing width."""
+
+    lag_factors: np.ndarray  # (len(LAG_TIMES_S), n)
+    grad: tuple  # (a, b, c, dx_first, dx_last) of np.gradient's second-order interior and first-order edges
+    smooth: int
+
+
+@njit(cache=True)
+def _lag_factors(t, taus):
+    """exp(-dt / tau) per lag and sample, dt from the sample before (0 at the first): ``lagged``'s factors."""
+    n = t.shape[0]
+    out = np.empty((taus.shape[0], n))
+    for j in range(taus.shape[0]):
+        tau = taus[j]
+        tp = t[0] if n else 0.0
+        for k in range(n):
+            dt = t[k] - tp
+            out[j, k] = math.exp(-dt / tau) if tau > 0 else 0.0
+            tp = t[k]
     return out
+
+
+@njit(cache=True)
+def _lag_columns(w, factors, denom):
+    """(lag_tau(w) - w) / denom per sample and lag, each lag ``lagged`` with the given factors from w[0]."""
+    n = w.shape[0]
+    m = factors.shape[0]
+    out = np.empty((n, m))
+    for j in range(m):
+        y = w[0] if n else 0.0
+        for k in range(n):
+            a = factors[j, k]
+            y = a * y + (1.0 - a) * w[k]
+            out[k, j] = (y - w[k]) / denom[j]
+    return out
+
+
+def time_terms(t: np.ndarray) -> TimeTerms:
+    """``TimeTerms`` of the sample times t (s)."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    factors = _lag_factors(t, np.asarray(LAG_TIMES_S, dtype=np.float64))
+    grad: tuple = ()
+    if t.size > 2:
+        dx = np.diff(t)
+        if (dx == dx[0]).all():  # np.gradient's uniform branch
+            grad = (float(dx[0]),)
+        else:
+            dx1, dx2 = dx[:-1], dx[1:]
+            grad = (-dx2 / (dx1 * (dx1 + dx2)), (dx2 - dx1) / (dx1 * dx2), dx1 / (dx2 * (dx1 + dx2)),
+                    dx[0], dx[-1])
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    return TimeTerms(factors, grad, max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9)))))
+
+
+def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float, terms: TimeTerms | None = None) -> np.ndarray:
+    """(lag_tau(w) - w) / (rate_scale tau) per sample (rows) and time constant tau of ``LAG_TIMES_S`` (columns);
+    each lag starts settled on the first sample (about -w' / rate_scale for slow motion). ``terms``: the
+    times' ``TimeTerms`` when already known."""
+    tt = terms if terms is not None else time_terms(t)
+    denom = np.array([rate_scale * tau for tau in LAG_TIMES_S])
+    return _lag_columns(np.ascontiguousarray(w, dtype=np.float64), tt.lag_factors, denom)
 
 
 @njit(cache=True)
@@ -204,10 +276,25 @@ def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs,
     return out
 
 
-def _smooth_rate(t: np.ndarray, w: np.ndarray) -> np.ndarray:
-    r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
-    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    k = max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9))))
+def _gradient(w: np.ndarray, grad: tuple) -> np.ndarray:
+    """``np.gradient(w, t)`` (edge order 1) from the weights ``time_terms`` keeps: the same operations."""
+    out = np.empty_like(w)
+    if len(grad) == 1:
+        out[1:-1] = (w[2:] - w[:-2]) / (2.0 * grad[0])
+        out[0] = (w[1] - w[0]) / grad[0]
+        out[-1] = (w[-1] - w[-2]) / grad[0]
+        return out
+    a, b, c, dx0, dxn = grad
+    out[1:-1] = a * w[:-2] + b * w[1:-1] + c * w[2:]
+    out[0] = (w[1] - w[0]) / dx0
+    out[-1] = (w[-1] - w[-2]) / dxn
+    return out
+
+
+def _smooth_rate(t: np.ndarray, w: np.ndarray, terms: TimeTerms | None = None) -> np.ndarray:
+    tt = terms if terms is not None else time_terms(t)
+    r = _gradient(np.asarray(w, dtype=np.float64), tt.grad) if t.size > 2 else np.zeros_like(w)
+    k = tt.smooth
     if k > 1:
         r = np.convolve(r, np.ones(k) / k, mode="same")
     return r
@@ -238,6 +325,7 @@ class ErrorModel:
     samples: int = 0
     extra: dict = field(default_factory=dict)
     _input_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _time_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def known_error_deg(self) -> float:
@@ -261,9 +349,10 @@ class ErrorModel:
             return np.zeros(w.size)
         nsets = len(self.sets)
         t = np.ascontiguousarray(t, dtype=np.float64)
-        v = _smooth_rate(t, w) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
+        tt = self._time_terms(t) if nsets >= 4 else None
+        v = _smooth_rate(t, w, tt) / self.rate_scale if nsets >= 4 else np.zeros(w.size)
         dirs, et, em, legs, q = self._input_terms(np.ascontiguousarray(x, dtype=np.float64), band)
-        g = lag_states(t, w, self.rate_scale) if nsets >= 7 else np.zeros((w.size, 0))
+        g = lag_states(t, w, self.rate_scale, tt) if nsets >= 7 else np.zeros((w.size, 0))
         return _correction(w, v, q, g, self.theta, self.w_center, self.w_scale, nsets, dirs, et, em, legs, band)
 
     def _input_terms(self, x: np.ndarray, band: float = 1.0) -> tuple:
@@ -284,6 +373,17 @@ class ErrorModel:
             if len(self._input_cache) >= 4:
                 self._input_cache.pop(next(iter(self._input_cache)))
             self._input_cache[key] = (x.copy(), terms)
+        return terms
+
+    def _time_terms(self, t: np.ndarray) -> TimeTerms:
+        """``time_terms`` of t, kept for the last sample times seen (every path of a log shares them)."""
+        with _CACHE_LOCK:
+            hit = self._time_cache.get("t")
+        if hit is not None and (hit[0] is t or np.array_equal(hit[0], t)):
+            return hit[1]
+        terms = time_terms(t)
+        with _CACHE_LOCK:
+            self._time_cache["t"] = (t, terms)
         return terms
 
     def corrected(self, t, x, w, band: float = 1.0) -> np.ndarray:

@@ -10,16 +10,20 @@ import pytest
 from helpers import spread_friction, two_stage_lag
 
 from warpbridge.model.boucwen import BoucWenParams, inverse
-from warpbridge.model.effects import Effects, apply_input_effects
+from warpbridge.model.effects import Effects, apply_input_effects, lagged, play
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.model_error import (
     FEATURE_SETS,
+    LAG_TIMES_S,
     SET_COLUMNS,
     ErrorModel,
+    _smooth_rate,
     bench_error_model,
     design,
     fit_error_model,
+    lag_states,
     play_states,
+    time_terms,
     travel_since_reversal,
 )
 from warpbridge.model.modelfile import ModelFile
@@ -51,6 +55,51 @@ def test_play_states_by_hand():
     q = play_states(x, np.array([1.0]))[:, 0]
     # play position: 0, 0, 1, 2, 2, 2, 1.5, 1.5 -> q = x - p
     np.testing.assert_allclose(q, [0.0, 0.5, 1.0, 1.0, 0.5, -1.0, -1.0, 0.0])
+
+
+def _jittered_times(n=4000, fs=500.0, seed=3):
+    """Sample times of a logged file: 500 Hz with a little jitter (the non-uniform branch of np.gradient)."""
+    rng = np.random.default_rng(seed)
+    return np.round(np.arange(n) / fs + rng.uniform(-2e-4, 2e-4, n), 4)
+
+
+@pytest.mark.parametrize("times", ["jittered", "uniform", "three", "two", "one"])
+def test_the_rate_and_lag_terms_are_bit_for_bit_the_plain_operators(times):
+    # the correction computes its rate from np.gradient's weights and its lags from step factors kept per log;
+    # the result must be exactly what the plain operators give, so a diagnosis does not depend on the caching
+    t = {"jittered": _jittered_times(), "uniform": np.arange(4000) / 500.0, "three": np.array([0.0, 0.002, 0.0041]),
+         "two": np.array([0.0, 0.002]), "one": np.array([0.0])}[times]
+    w = np.sin(7.0 * t) + 0.3 * np.cos(31.0 * t) + 2.0
+    rate_scale = 0.7
+    plain_rate = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
+    k = max(1, int(round(0.01 / float(np.median(np.diff(t)))))) if t.size > 1 else 1
+    if k > 1:
+        plain_rate = np.convolve(plain_rate, np.ones(k) / k, mode="same")
+    plain_lags = np.column_stack([(lagged(t, w, tau, float(w[0])) - w) / (rate_scale * tau) for tau in LAG_TIMES_S])
+    terms = time_terms(t)
+    for got in (_smooth_rate(t, w), _smooth_rate(t, w, terms)):
+        assert np.array_equal(got, plain_rate)
+    for got in (lag_states(t, w, rate_scale), lag_states(t, w, rate_scale, terms)):
+        assert np.array_equal(got, plain_lags)
+
+
+def test_play_states_are_bit_for_bit_one_play_after_another():
+    x = np.cumsum(np.random.default_rng(4).normal(0.0, 0.05, 3000)) + 5.0
+    thresholds = np.array([0.01, 0.1, 0.4, 2.0])
+    plain = np.column_stack([(x - play(x, 2.0 * r, float(x[0]))) / r for r in thresholds])
+    assert np.array_equal(play_states(x, thresholds), plain)
+
+
+def test_the_correction_reuses_its_time_terms_only_for_the_same_times():
+    t, u, w = _log()
+    em = fit_error_model(t, u, w, w + 0.05 * np.gradient(w, t) + 0.02 * np.sin(3 * t), noise=0.001)
+    assert "rate" in em.sets
+    first = em.correction(t, u, w)
+    stretched = t * 1.5  # another log's times: the rate terms change with them
+    again = ErrorModel.from_dict(em.to_dict())
+    assert np.array_equal(em.correction(stretched, u, w), again.correction(stretched, u, w))
+    assert not np.array_equal(em.correction(stretched, u, w), first)
+    assert np.array_equal(em.correction(t.copy(), u, w), first)
 
 
 def _log(seconds=30.0, fs=200.0, seed=0):
