@@ -33,7 +33,10 @@
    held-out error is statistically indistinguishable from the chosen one are
    reported as ambiguous, with the excitation that would separate them; a
    parameter fitted at a bound of its search is reported and halves the
-   effect's confidence.
+   effect's confidence. A delay that shortened beside a friction that weakened,
+   by no more than the friction's share of the bench's delay, is the friction's
+   rate-dependent part (a lubricated sheath's viscous drag, ``viscous_lag``):
+   kept in the model, not named.
 3. **How far.** Held-out RMS before and after, and the share of the gap closed
    ``(MSE_nominal - MSE_augmented) / (MSE_nominal - noise^2)``, overall and in
    every cell of step 1.
@@ -541,11 +544,41 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     kept_by_airspeed = {k: v for k, v in kept_by_airspeed.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
+    viscous = viscous_lag(sel, cur.effects, ex.base)
+    if viscous is not None:
+        dropped.append({"effect": "delay", "reason": viscous["reason"], "viscous_lag": viscous})
+        notes.append(viscous["reason"])
+        sel = tuple(x for x in sel if x != "delay")
+        chosen_round.pop("delay", None)
     from_runner_up = from_runner_up and bool(sel) and chosen_round.get(sel[0]) == 1
     # an effect dropped leaves a gap in the round numbers: the rounds the report shows follow ``sel``
     chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
     return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up, to_load,
                 kept_by_airspeed)
+
+
+def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict | None:
+    """The delay named beside a weaker friction when it is that friction's rate-dependent part (else None).
+
+    A lubricated sheath's drag on the tendon grows with its speed: a lag in the pull that the rate-independent
+    model carries in its transport delay, identified on the bench together with the link's latency and the
+    servo's. It is friction, and it scales with the sheath's friction as the band does. So when the band
+    narrows (friction scale s < 1) and the delay shortens with it, by no more than the share (1 - s) of the
+    bench's delay that such a drag could at most have held, the shorter delay is the friction's, not a link
+    that got faster; the delay stays in the model (it predicts the log) but is not named. A delay that grew,
+    or one beside a stronger friction, stays named: a link's latency can grow in the field, and a stronger
+    drag and a slower link lengthen the lag alike."""
+    if not {"friction", "delay"} <= set(selected) or eff.has_capstan:
+        return None
+    s, d0, d1 = eff.friction_scale, base.delay_s, eff.delay_s
+    if not (0.0 < s < 1.0 and d0 > 0.0 and d1 < d0 and d0 - d1 <= (1.0 - s) * d0):
+        return None
+    return {"friction_scale": s, "bench_delay_s": d0, "delay_s": d1,
+            "reason": f"the delay shortened with the friction ({1e3 * d0:.1f} -> {1e3 * d1:.1f} ms while the "
+                      f"band narrowed to x{s:.2f}): a sheath's viscous drag lags the pull in proportion to its "
+                      f"speed and weakens with the friction, and the bench's delay held it with the link's and "
+                      f"the servo's latency; the shorter delay is the friction's rate-dependent part, kept in the "
+                      f"model but not named (a link does not get faster in the field)"}
 
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:

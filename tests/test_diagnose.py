@@ -16,7 +16,13 @@ from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain
 from warpbridge.model.diag_where import PHASES, phase_labels
-from warpbridge.model.diagnose import DECISION_GRID, DiagnoseOptions, diagnose, shared_latency_start
+from warpbridge.model.diagnose import (
+    DECISION_GRID,
+    DiagnoseOptions,
+    diagnose,
+    shared_latency_start,
+    viscous_lag,
+)
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.model_error import bench_error_model
@@ -218,6 +224,38 @@ def test_a_field_delay_on_top_of_the_rigs_own_is_reported_beside_it():
     assert d.model.effects.delay_s == pytest.approx(0.08, abs=0.008)
     assert any(line.strip().startswith("delay: delay_s 0.0") and "(the model had delay_s 0.02)" in line
                for line in d.report["summary"])
+
+
+@pytest.mark.parametrize("field, folded", [
+    (Effects(friction_scale=0.5, delay_s=0.03), True),  # narrower band, the lag shortened by a quarter: folded
+    (Effects(friction_scale=0.5, delay_s=0.015), False),  # shortened by more than half: more than a drag held
+    (Effects(friction_scale=0.5, delay_s=0.05), False),  # the lag grew: a slower link
+    (Effects(friction_scale=1.5, delay_s=0.03), False),  # a stronger friction: a drag and a link alike
+    (Effects(capstan_pull_ratio=0.01, delay_s=0.03), False),  # the stall form: no band scaled
+])
+def test_a_shorter_delay_beside_a_narrower_band_is_the_frictions_viscous_part(field, folded):
+    base = Effects(delay_s=0.04)
+    got = viscous_lag(("friction", "delay"), field, base)
+    assert (got is not None) == folded
+    if folded:
+        assert got["bench_delay_s"] == 0.04 and got["delay_s"] == 0.03 and "viscous" in got["reason"]
+    assert viscous_lag(("friction",), field, base) is None
+    assert viscous_lag(("friction", "delay"), field, Effects()) is None  # the bench had no lag to share
+
+
+def test_a_friction_that_took_its_drag_with_it_is_named_alone_and_its_lag_kept():
+    # the bench rig lags 40 ms (link, servo and a lubricated sheath's drag); in the field the friction halved
+    # and the lag shortened to 28 ms: one change, the sheath's, which the model keeps and names as friction
+    carried = Effects(delay_s=0.04)
+    t, u, w, v = make_log(Effects(delay_s=0.028, friction_scale=0.5), seed=16)
+    mf = nominal_model()
+    mf.effects = carried
+    d = diagnose(t, u, w, v, mf)
+    assert d.verdict == ["friction"]
+    assert d.model.effects.delay_s == pytest.approx(0.028, abs=0.006)
+    assert d.model.effects.friction_scale == pytest.approx(0.5, abs=0.1)
+    assert any(x["effect"] == "delay" and "viscous_lag" in x for x in d.report["dropped"])
+    assert any("viscous drag" in n for n in d.report["notes"])
 
 
 # ---- the command ---------------------------------------------------------------------------------
