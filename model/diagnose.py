@@ -428,6 +428,12 @@ class Path:
     from_runner_up: bool = False  # round 2 went on from the first round's runner-up
     to_load: dict[str, dict] = field(default_factory=dict)  # effects given to the aero load: their airspeed split
     kept_by_airspeed: dict[str, dict] = field(default_factory=dict)  # named beside the load: their split
+    unnamed: dict[str, dict] = field(default_factory=dict)  # chosen and kept in the model as another effect's part
+
+    @property
+    def named(self) -> tuple[str, ...]:
+        """The verdict: the chosen effects less those kept as another one's part (``viscous_lag``)."""
+        return tuple(x for x in self.selected if x not in self.unnamed)
 
 
 def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
@@ -544,30 +550,33 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     kept_by_airspeed = {k: v for k, v in kept_by_airspeed.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
+    unnamed: dict[str, dict] = {}
     viscous = viscous_lag(sel, cur.effects, ex.base)
-    if viscous is not None:
-        dropped.append({"effect": "delay", "reason": viscous["reason"], "viscous_lag": viscous})
+    if viscous is not None:  # chosen and fitted as any effect, but the friction's: not named
+        unnamed["delay"] = viscous
         notes.append(viscous["reason"])
-        sel = tuple(x for x in sel if x != "delay")
-        chosen_round.pop("delay", None)
     from_runner_up = from_runner_up and bool(sel) and chosen_round.get(sel[0]) == 1
     # an effect dropped leaves a gap in the round numbers: the rounds the report shows follow ``sel``
     chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
     return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up, to_load,
-                kept_by_airspeed)
+                kept_by_airspeed, unnamed)
 
 
 def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict | None:
-    """The delay named beside a weaker friction when it is that friction's rate-dependent part (else None).
+    """The delay chosen beside a weaker friction when it is that friction's rate-dependent part (else None).
 
-    A lubricated sheath's drag on the tendon grows with its speed: a lag in the pull that the rate-independent
-    model carries in its transport delay, identified on the bench together with the link's latency and the
-    servo's. It is friction, and it scales with the sheath's friction as the band does. So when the band
-    narrows (friction scale s < 1) and the delay shortens with it, by no more than the share (1 - s) of the
-    bench's delay that such a drag could at most have held, the shorter delay is the friction's, not a link
-    that got faster; the delay stays in the model (it predicts the log) but is not named. A delay that grew,
-    or one beside a stronger friction, stays named: a link's latency can grow in the field, and a stronger
-    drag and a slower link lengthen the lag alike."""
+    A sheath's drag on the tendon grows with its sliding speed (a lubricant's shear), and like its Coulomb
+    part it presses with the normal force, so a change of the bend, the wrap or the tension scales both.
+    The drag lags the pull; the rate-independent model can hold a lag only in its transport delay, which
+    identify fits on the bench together with the link's and the servo's latency (a first-order lag taken
+    as a delay: an approximation). So when the band narrows (friction scale s < 1) and the delay shortens
+    with it, by no more than the share (1 - s) of the bench's delay that a drag could at most have held
+    (all of it being drag: a generous bound), the shorter delay is read as the friction's: it stays in the
+    model (it predicts the log), is reported apart from the verdict, and a note says what to check. A delay
+    that grew stays named, and so does one beside a stronger friction: a slower link and a stronger drag
+    lengthen the lag alike. What this rule gets wrong: a field link faster than the bench's (another
+    logger or radio) beside a friction that weakened, and a change of lubricant, which moves the drag and
+    the Coulomb part apart (then the delay grows and stays named)."""
     if not {"friction", "delay"} <= set(selected) or eff.has_capstan:
         return None
     s, d0, d1 = eff.friction_scale, base.delay_s, eff.delay_s
@@ -575,10 +584,11 @@ def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict 
         return None
     return {"friction_scale": s, "bench_delay_s": d0, "delay_s": d1,
             "reason": f"the delay shortened with the friction ({1e3 * d0:.1f} -> {1e3 * d1:.1f} ms while the "
-                      f"band narrowed to x{s:.2f}): a sheath's viscous drag lags the pull in proportion to its "
-                      f"speed and weakens with the friction, and the bench's delay held it with the link's and "
-                      f"the servo's latency; the shorter delay is the friction's rate-dependent part, kept in the "
-                      f"model but not named (a link does not get faster in the field)"}
+                      f"band narrowed to x{s:.2f}): a sheath's drag lags the pull in proportion to its speed and "
+                      f"weakens with the friction, and the bench's delay held that lag with the link's and the "
+                      f"servo's latency; the shorter delay is read as the friction's rate-dependent part, kept in "
+                      f"the model but not named (if the field's link or logger is faster than the bench's, it "
+                      f"may be that instead: compare their latencies)"}
 
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
@@ -652,11 +662,11 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
             if progress:
                 progress("alternative decisions", k, len(opt.alternatives))
             alt = path if d == opt.decision else decide(ex, d, opt.max_effects)
-            alternatives.append({"decision": d.to_dict(), "verdict": list(alt.selected),
-                                 "effects": {n: alt.fit.values([n])[n] for n in alt.selected},
+            alternatives.append({"decision": d.to_dict(), "verdict": list(alt.named),
+                                 "effects": {n: alt.fit.values([n])[n] for n in alt.named},
                                  "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
                                  "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
-    selected = list(path.selected)
+    selected = list(path.named)
     cur = path.fit
     rounds, ambiguities, chosen_conf = _main_rounds(ex, path, opt)
     w_aug = cur.w_pred if selected else w_nom
@@ -713,6 +723,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "bound_hits": hits,
         "ambiguities": ambiguities,
         "dropped": path.dropped,
+        "kept_unnamed": {n: {"fitted": cur.values([n])[n]} | v for n, v in path.unnamed.items()},
         "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
         "alternatives": alternatives,
@@ -913,7 +924,7 @@ def _ambiguity(best: Judged, alts: list[Judged], rnd: int) -> dict:
 def _candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, chosen_conf: dict[str, float],
                      final: Fit, nominal: Fit, hits: list[dict]) -> list[dict]:
     out = []
-    selected = path.selected
+    selected = path.named
     first = {j.name: j for j in rounds[0]} if rounds else {}
     for n in list(names) + list(skipped):
         row: dict = {"effect": n, "parameters": list(EFFECT_FIELDS[n][0]), "in_verdict": n in selected}

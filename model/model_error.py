@@ -208,6 +208,8 @@ def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float, terms: TimeTerms
     each lag starts settled on the first sample (about -w' / rate_scale for slow motion). ``terms``: the
     times' ``TimeTerms`` when already known."""
     tt = terms if terms is not None else time_terms(t)
+    if tt.lag_factors.shape[1] != np.size(w):
+        raise ValueError(f"{np.size(w)} warp samples for {tt.lag_factors.shape[1]} sample times")
     denom = np.array([rate_scale * tau for tau in LAG_TIMES_S])
     return _lag_columns(np.ascontiguousarray(w, dtype=np.float64), tt.lag_factors, denom)
 
@@ -379,11 +381,11 @@ class ErrorModel:
         """``time_terms`` of t, kept for the last sample times seen (every path of a log shares them)."""
         with _CACHE_LOCK:
             hit = self._time_cache.get("t")
-        if hit is not None and (hit[0] is t or np.array_equal(hit[0], t)):
+        if hit is not None and np.array_equal(hit[0], t):  # a copy: the caller's array may change later
             return hit[1]
         terms = time_terms(t)
         with _CACHE_LOCK:
-            self._time_cache["t"] = (t, terms)
+            self._time_cache["t"] = (t.copy(), terms)
         return terms
 
     def corrected(self, t, x, w, band: float = 1.0) -> np.ndarray:

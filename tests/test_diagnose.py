@@ -238,7 +238,7 @@ def test_a_shorter_delay_beside_a_narrower_band_is_the_frictions_viscous_part(fi
     got = viscous_lag(("friction", "delay"), field, base)
     assert (got is not None) == folded
     if folded:
-        assert got["bench_delay_s"] == 0.04 and got["delay_s"] == 0.03 and "viscous" in got["reason"]
+        assert got["bench_delay_s"] == 0.04 and got["delay_s"] == 0.03 and "rate-dependent part" in got["reason"]
     assert viscous_lag(("friction",), field, base) is None
     assert viscous_lag(("friction", "delay"), field, Effects()) is None  # the bench had no lag to share
 
@@ -254,8 +254,14 @@ def test_a_friction_that_took_its_drag_with_it_is_named_alone_and_its_lag_kept()
     assert d.verdict == ["friction"]
     assert d.model.effects.delay_s == pytest.approx(0.028, abs=0.006)
     assert d.model.effects.friction_scale == pytest.approx(0.5, abs=0.1)
-    assert any(x["effect"] == "delay" and "viscous_lag" in x for x in d.report["dropped"])
-    assert any("viscous drag" in n for n in d.report["notes"])
+    kept = d.report["kept_unnamed"]["delay"]
+    assert kept["fitted"]["delay_s"] == pytest.approx(d.model.effects.delay_s) and kept["bench_delay_s"] == 0.04
+    assert any("rate-dependent part" in n for n in d.report["notes"])
+    assert "delay" not in d.report["effects"] and not any(x["effect"] == "delay" for x in d.report["dropped"])
+    rows = {c["effect"]: c for c in d.report["candidates"]}
+    assert rows["friction"]["in_verdict"] and not rows["delay"]["in_verdict"]
+    assert rows["friction"]["confidence"] > 0.5
+    assert d.model.meta["verdict"] == ["friction"]
 
 
 # ---- the command ---------------------------------------------------------------------------------

@@ -67,7 +67,8 @@ def _jittered_times(n=4000, fs=500.0, seed=3):
 def test_the_rate_and_lag_terms_are_bit_for_bit_the_plain_operators(times):
     # the correction computes its rate from np.gradient's weights and its lags from step factors kept per log;
     # the result must be exactly what the plain operators give, so a diagnosis does not depend on the caching
-    t = {"jittered": _jittered_times(), "uniform": np.arange(4000) / 500.0, "three": np.array([0.0, 0.002, 0.0041]),
+    # (steps of 1/512 s are exact in binary: np.gradient's uniform branch; 1/500 s steps are not)
+    t = {"jittered": _jittered_times(), "uniform": np.arange(4000) / 512.0, "three": np.array([0.0, 0.002, 0.0041]),
          "two": np.array([0.0, 0.002]), "one": np.array([0.0])}[times]
     w = np.sin(7.0 * t) + 0.3 * np.cos(31.0 * t) + 2.0
     rate_scale = 0.7
@@ -77,6 +78,7 @@ def test_the_rate_and_lag_terms_are_bit_for_bit_the_plain_operators(times):
         plain_rate = np.convolve(plain_rate, np.ones(k) / k, mode="same")
     plain_lags = np.column_stack([(lagged(t, w, tau, float(w[0])) - w) / (rate_scale * tau) for tau in LAG_TIMES_S])
     terms = time_terms(t)
+    assert len(terms.grad) == {"jittered": 5, "uniform": 1, "three": 5, "two": 0, "one": 0}[times]
     for got in (_smooth_rate(t, w), _smooth_rate(t, w, terms)):
         assert np.array_equal(got, plain_rate)
     for got in (lag_states(t, w, rate_scale), lag_states(t, w, rate_scale, terms)):
@@ -100,6 +102,10 @@ def test_the_correction_reuses_its_time_terms_only_for_the_same_times():
     assert np.array_equal(em.correction(stretched, u, w), again.correction(stretched, u, w))
     assert not np.array_equal(em.correction(stretched, u, w), first)
     assert np.array_equal(em.correction(t.copy(), u, w), first)
+    fresh, t2 = ErrorModel.from_dict(em.to_dict()), t.copy()
+    fresh.correction(t2, u, w)
+    t2 *= 1.5  # the caller's times changed in place: not taken for the ones the terms were computed on
+    assert np.array_equal(fresh.correction(t2, u, w), again.correction(stretched, u, w))
 
 
 def _log(seconds=30.0, fs=200.0, seed=0):
