@@ -1,7 +1,8 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms] [--threads 2]
-                                             [--seed 2] [--cases 10,12] [--families ...] [--repeats 1] [--cache DIR]
+                                             [--seed 2] [--plant 0] [--cases 10,12] [--families ...] [--repeats 1]
+                                             [--cache DIR]
 
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
 by side) against ``--threads`` threads (``--jobs N``; the command's default is the cores free at its start).
@@ -15,13 +16,14 @@ each lag's step factors, ``np.gradient``'s weights) and its play states in one c
 the code before (a lag recomputing exp(-dt / tau) at every sample, ``np.gradient`` and a median of the steps at
 every evaluation, one play after another), both on one thread; the reports must be identical.
 
-Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant 0 of each family at ``--seed``, the case
-numbers given; 10-12 are its pairs, usually the slowest; all six families unless ``--families``), the bench
-models from its cache (identified there when missing). Each case runs plain ``diagnose`` through
-``bridge.cli.main`` once per variant and repeat, the variants alternating in order, one process at a time. The
-report must be the same either way (checked: the verdict, every fitted parameter and every candidate's
-figures; only the count of core runs may differ between thread counts, each thread caching its own); the table
-gives each case's times and their ratio, then the median ratio and the slowest time per variant.
+Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at
+``--seed``, the case numbers given; 10-12 are its pairs, usually the slowest; all six families unless
+``--families``), the bench models from its cache (identified there when missing). Each case runs plain
+``diagnose`` through ``bridge.cli.main`` once per variant and repeat, the variants alternating in order, one
+process at a time. The report must be the same either way (checked: the verdict, every fitted parameter and
+every candidate's figures; only the count of core runs may differ between thread counts, each thread caching
+its own); the table gives each case's times and their ratio, then the median ratio and the slowest time per
+variant.
 """
 
 from __future__ import annotations
@@ -137,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")
+    ap.add_argument("--plant", type=int, default=0, help="which plant of each family (the blind benchmark draws 3)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=blind.default_cache())
     a = ap.parse_args(argv)
@@ -154,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
                           "at every evaluation (baseline), one thread"}[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
-    print(f"diagnose, 60 s at 500 Hz: {what}; seed {a.seed}, plant 0 of each family, cases {a.cases}, "
+    print(f"diagnose, 60 s at 500 Hz: {what}; seed {a.seed}, plant {a.plant} of each family, cases {a.cases}, "
           f"{a.repeats} repeat(s); load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
           flush=True)
     print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  {same_what}",
@@ -162,9 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for n, family in enumerate(f for f in a.families.split(",") if f):
-            plant = draw_plants(a.seed, family, 1)[0]
-            model = blind.identified_model(plant, a.seed, 0, args, work)
-            drawn = blind.draw_cases(a.seed, family, 0, 2, 3)
+            plant = draw_plants(a.seed, family, a.plant + 1)[a.plant]
+            model = blind.identified_model(plant, a.seed, a.plant, args, work)
+            drawn = blind.draw_cases(a.seed, family, a.plant, 2, 3)
             for k in cases:
                 names, case_seed = drawn[k]
                 fc = blind.field_case(plant, case_seed, tuple(names), args.duration, args.rate)
