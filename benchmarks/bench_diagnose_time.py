@@ -11,10 +11,10 @@ every evaluation (the code before they were cached), both on one thread. ``--com
 correction's loop-shape terms stretched in travel with a friction band (as shipped: their input terms computed
 again for every band a fit tries) against kept on the bench's travel scale (the code before; their height
 still scales), both on one thread; the verdicts are compared, the reports differ by design.
-``--compare time-terms``: the correction's rate and lag terms from weights kept per log (``model_error.TimeTerms``:
-each lag's step factors, ``np.gradient``'s weights) and its play states in one compiled pass (as shipped) against
-the code before (a lag recomputing exp(-dt / tau) at every sample, ``np.gradient`` and a median of the steps at
-every evaluation, one play after another), both on one thread; the reports must be identical.
+``--compare time-terms``: the correction's rate and lag terms from what is kept per log (``model_error.TimeTerms``:
+each lag's step factors, the rate's smoothing width) and its play states in one compiled pass (as shipped) against
+the code before (a lag recomputing exp(-dt / tau) at every sample, a median of the steps at every evaluation, one
+play after another), both on one thread; the reports must be identical.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at
 ``--seed``, the case numbers given; 10-12 are its pairs, usually the slowest; all six families unless

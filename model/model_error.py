@@ -31,7 +31,7 @@ linear combination of features of where the hysteresis is::
   a fast bench input needs more).
 
 What the rate and lag terms take from the sample times alone (each lag's
-step factors, ``np.gradient``'s weights) is kept per log (``TimeTerms``), and
+step factors, the rate's smoothing width) is kept per log (``TimeTerms``), and
 the plays run in one compiled pass: a diagnosis evaluates the correction on
 thousands of paths of one log, and the results are bit for bit those of the
 plain operators.
@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbridge.model._jit import njit
-from warpbridge.model.effects import slack_step
+from warpbridge.model.effects import play
 
 _CACHE_LOCK = threading.Lock()  # guards every ErrorModel's input-terms cache
 
@@ -130,15 +130,11 @@ def play_states(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _play_states(x, thresholds):
-    """``play_states`` in one compiled pass: the same steps as ``model.effects.play`` per threshold."""
-    n = x.shape[0]
-    out = np.empty((n, thresholds.shape[0]))
+    """``play_states`` in one compiled pass over the thresholds."""
+    out = np.empty((x.shape[0], thresholds.shape[0]))
     for j in range(thresholds.shape[0]):
         r = thresholds[j]
-        y = x[0] if n else 0.0
-        for k in range(n):
-            y = slack_step(x[k], y, r, 0.0, 0.0, 0.0)
-            out[k, j] = (x[k] - y) / r
+        out[:, j] = (x - play(x, 2.0 * r, x[0])) / r
     return out
 
 
@@ -149,10 +145,9 @@ def _plays(x: np.ndarray, x_span: float) -> np.ndarray:
 @dataclass(frozen=True)
 class TimeTerms:
     """What the rate and lag terms take from the sample times alone (the same for every path of a log):
-    each lag's step factors exp(-dt / tau), ``np.gradient``'s weights and the rate's smoothing width."""
+    each lag's step factors exp(-dt / tau) and the rate's smoothing width (a median of the steps)."""
 
     lag_factors: np.ndarray  # (len(LAG_TIMES_S), n)
-    grad: tuple  # (a, b, c, dx_first, dx_last) of np.gradient's second-order interior and first-order edges
     smooth: int
 
 
@@ -190,17 +185,8 @@ def time_terms(t: np.ndarray) -> TimeTerms:
     """``TimeTerms`` of the sample times t (s)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     factors = _lag_factors(t, np.asarray(LAG_TIMES_S, dtype=np.float64))
-    grad: tuple = ()
-    if t.size > 2:
-        dx = np.diff(t)
-        if (dx == dx[0]).all():  # np.gradient's uniform branch
-            grad = (float(dx[0]),)
-        else:
-            dx1, dx2 = dx[:-1], dx[1:]
-            grad = (-dx2 / (dx1 * (dx1 + dx2)), (dx2 - dx1) / (dx1 * dx2), dx1 / (dx2 * (dx1 + dx2)),
-                    dx[0], dx[-1])
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    return TimeTerms(factors, grad, max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9)))))
+    return TimeTerms(factors, max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9)))))
 
 
 def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float, terms: TimeTerms | None = None) -> np.ndarray:
@@ -278,25 +264,9 @@ def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs,
     return out
 
 
-def _gradient(w: np.ndarray, grad: tuple) -> np.ndarray:
-    """``np.gradient(w, t)`` (edge order 1) from the weights ``time_terms`` keeps: the same operations."""
-    out = np.empty_like(w)
-    if len(grad) == 1:
-        out[1:-1] = (w[2:] - w[:-2]) / (2.0 * grad[0])
-        out[0] = (w[1] - w[0]) / grad[0]
-        out[-1] = (w[-1] - w[-2]) / grad[0]
-        return out
-    a, b, c, dx0, dxn = grad
-    out[1:-1] = a * w[:-2] + b * w[1:-1] + c * w[2:]
-    out[0] = (w[1] - w[0]) / dx0
-    out[-1] = (w[-1] - w[-2]) / dxn
-    return out
-
-
 def _smooth_rate(t: np.ndarray, w: np.ndarray, terms: TimeTerms | None = None) -> np.ndarray:
-    tt = terms if terms is not None else time_terms(t)
-    r = _gradient(np.asarray(w, dtype=np.float64), tt.grad) if t.size > 2 else np.zeros_like(w)
-    k = tt.smooth
+    r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
+    k = (terms if terms is not None else time_terms(t)).smooth
     if k > 1:
         r = np.convolve(r, np.ones(k) / k, mode="same")
     return r
