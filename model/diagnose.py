@@ -36,7 +36,9 @@
    effect's confidence. A delay that shortened beside a friction that weakened,
    by no more than the friction's share of the bench's delay, is the friction's
    rate-dependent part (a lubricated sheath's viscous drag, ``viscous_lag``):
-   kept in the model, not named.
+   kept in the model, not named. So is a friction chosen after a pre-tension
+   whose band moved with the rig's compliance, and by at least as much: a
+   sheath's band follows the tension it carries (``tension_band``).
 3. **How far.** Held-out RMS before and after, and the share of the gap closed
    ``(MSE_nominal - MSE_augmented) / (MSE_nominal - noise^2)``, overall and in
    every cell of step 1.
@@ -555,6 +557,10 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     if viscous is not None:  # chosen and fitted as any effect, but the friction's: not named
         unnamed["delay"] = viscous
         notes.append(viscous["reason"])
+    tension = tension_band(sel, chosen_round, cur.effects, ex.base)
+    if tension is not None:  # likewise: the band followed the tension
+        unnamed["friction"] = tension
+        notes.append(tension["reason"])
     from_runner_up = from_runner_up and bool(sel) and chosen_round.get(sel[0]) == 1
     # an effect dropped leaves a gap in the round numbers: the rounds the report shows follow ``sel``
     chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
@@ -589,6 +595,44 @@ def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict 
                       f"servo's latency; the shorter delay is read as the friction's rate-dependent part, kept in "
                       f"the model but not named (if the field's link or logger is faster than the bench's, it "
                       f"may be that instead: compare their latencies)"}
+
+
+def tension_band(selected: tuple[str, ...], chosen_round: dict[str, int], eff: Effects,
+                 base: Effects) -> dict | None:
+    """The friction chosen after a pre-tension when its band change is what the tension change does to a
+    sheath (else None).
+
+    In a tendon sheath the force a stretch of sheath holds grows with the tension through it (capstan
+    law), so the hysteresis band, in tendon travel, scales with the tension the rig carries at each warp:
+    a wing re-rigged stiffer (or softer) pulls harder (or less) for the same warp and widens (or narrows)
+    the band by the same factor. The same tension stretches the tendon: the backbone's travel per degree
+    scales too, but only in the share ``sigma`` of it that is the tendon's stretch (the rest is the wing's
+    geometry), so the compliance changes by log(1/gain) = sigma x the band's log factor, 0 < sigma <= 1
+    (``pretension_loop = 1`` is sigma = 1). When the pre-tension was chosen first (it explains the log's
+    change on its own, the friction refines it) and the band and the compliance moved the same way, the
+    band by at least as much, the friction is read as the tension's: kept in the model (it predicts the
+    log), reported apart from the verdict, with a note. A friction that moved against the compliance, or
+    less than it, or that was chosen first, stays named. What this rule gets wrong: a sheath whose own
+    friction changed (wear, lubricant, routing) in the same direction as a re-rigging, by more than the
+    re-rigging's share; measuring the tension at rest tells them apart."""
+    if not {"friction", "pretension"} <= set(selected) or eff.has_capstan:
+        return None
+    if chosen_round.get("pretension", 0) >= chosen_round.get("friction", 0):
+        return None
+    compliance = math.log(base.pretension_gain / eff.pretension_gain)
+    band = math.log(eff.friction_scale / base.friction_scale) + (compliance if eff.pretension_loop else 0.0)
+    if not (compliance * band > 0.0 and abs(band) >= abs(compliance)):
+        return None
+    sigma = compliance / band
+    way = "widened" if band > 0 else "narrowed"
+    return {"band_factor": math.exp(band), "compliance_factor": math.exp(compliance), "stretch_share": sigma,
+            "reason": f"the friction band {way} (x{math.exp(band):.2f}) with the rig's compliance (x"
+                      f"{math.exp(compliance):.2f} travel per degree) after the pre-tension changed: in a tendon "
+                      f"sheath the band follows the tension (capstan law) and the tendon's stretch, {sigma:.0%} "
+                      f"of the travel here, follows it too; the friction change is read as the pre-tension's, "
+                      f"kept in the model but not named (if the sheath itself changed, its bend, wear or "
+                      f"lubricant, measure the tendon's tension at rest against the bench's: a band that "
+                      f"changed more than the tension is the sheath's own)"}
 
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
@@ -1046,6 +1090,8 @@ def summary_lines(rep: dict) -> list[str]:
         for n, p in rep["effects"].items():  # e.g. a field delay on top of the rig's own, which identify found
             was = nominal.get(n)
             lines.append(f"  {n}: {_fmt_params(p)}" + (f" (the model had {_fmt_params(was)})" if was else ""))
+        for n, k in (rep.get("kept_unnamed") or {}).items():  # in the augmented model, as the note says
+            lines.append(f"  kept in the model, not named: {n}: {_fmt_params(k['fitted'])}")
     else:
         lines.append("verdict: [] (no effect explains the gap beyond noise and the model's known error)")
     lines.extend(f"note: {n}" for n in rep["notes"])

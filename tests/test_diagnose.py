@@ -21,6 +21,7 @@ from warpbridge.model.diagnose import (
     DiagnoseOptions,
     diagnose,
     shared_latency_start,
+    tension_band,
     viscous_lag,
 )
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
@@ -262,6 +263,43 @@ def test_a_friction_that_took_its_drag_with_it_is_named_alone_and_its_lag_kept()
     assert rows["friction"]["in_verdict"] and not rows["delay"]["in_verdict"]
     assert rows["friction"]["confidence"] > 0.5
     assert d.model.meta["verdict"] == ["friction"]
+
+
+@pytest.mark.parametrize("field, rounds, folded", [
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), (1, 2), True),  # sigma ~0.37
+    (Effects(pretension_offset_mm=0.2, pretension_gain=1.05, friction_scale=0.85), (1, 2), True),  # softer: narrower
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=0.85), (1, 2), False),  # against it
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.8, friction_scale=1.1), (1, 2), False),  # less than it
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), (2, 1), False),  # friction first
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, capstan_pull_ratio=0.01), (1, 2), False),  # a stall
+    # the whole-loop form already scales the band with the compliance: the friction adds the rest of it
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=1.1), (1, 2), True),
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=0.97), (1, 2),
+     False),  # the friction takes back part of what the loop form scaled: not the tension's
+])
+def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(field, rounds, folded):
+    order = dict(zip(("pretension", "friction"), rounds, strict=True))
+    got = tension_band(("pretension", "friction"), order, field, Effects())
+    assert (got is not None) == folded
+    if folded:
+        assert 0.0 < got["stretch_share"] <= 1.0 and "capstan" in got["reason"]
+        assert got["band_factor"] == pytest.approx(field.friction_scale / (field.pretension_gain if
+                                                                           field.pretension_loop else 1.0))
+    assert tension_band(("pretension",), {"pretension": 1}, field, Effects()) is None
+
+
+def test_a_retensioned_rig_whose_band_followed_is_named_pretension_and_its_friction_kept():
+    # a stiffer wing: the rig pulls harder for the same warp, so the tendon stretches more (travel per degree
+    # x1.06, the tendon's share of it) and the sheath holds more (band x1.25, the whole tension's factor)
+    t, u, w, v = make_log(Effects(pretension_offset_mm=0.25, pretension_gain=1 / 1.06, friction_scale=1.25), seed=5)
+    d = diagnose(t, u, w, v, nominal_model())
+    assert d.verdict == ["pretension"], d.report["notes"]
+    kept = d.report["kept_unnamed"]["friction"]
+    assert kept["fitted"]["friction_scale"] == pytest.approx(d.model.effects.friction_scale)
+    assert kept["band_factor"] > kept["compliance_factor"] > 1.0
+    assert d.model.effects.friction_scale == pytest.approx(1.25, abs=0.1)
+    assert any("kept in the model, not named: friction" in line for line in d.report["summary"])
+    assert not any(n.startswith("friction named with pretension") for n in d.report["notes"])
 
 
 # ---- the command ---------------------------------------------------------------------------------
