@@ -557,7 +557,11 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     if viscous is not None:  # chosen and fitted as any effect, but the friction's: not named
         unnamed["delay"] = viscous
         notes.append(viscous["reason"])
-    tension = tension_band(sel, chosen_round, cur.effects, ex.base)
+    # the effect that won the first round on its own and kept its place (not a runner-up taken for its pair,
+    # not one of two that entered together)
+    first_alone = sel[0] if sel and not entered_together and not from_runner_up and chosen_round.get(sel[0]) == 1 \
+        else None
+    tension = tension_band(sel, first_alone, cur.effects, ex.base)
     if tension is not None:  # likewise: the band followed the tension
         unnamed["friction"] = tension
         notes.append(tension["reason"])
@@ -597,7 +601,7 @@ def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict 
                       f"may be that instead: compare their latencies)"}
 
 
-def tension_band(selected: tuple[str, ...], chosen_round: dict[str, int], eff: Effects,
+def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effects,
                  base: Effects) -> dict | None:
     """The friction chosen after a pre-tension when its band change is what the tension change does to a
     sheath (else None).
@@ -607,20 +611,24 @@ def tension_band(selected: tuple[str, ...], chosen_round: dict[str, int], eff: E
     a wing re-rigged stiffer (or softer) pulls harder (or less) for the same warp and widens (or narrows)
     the band by the same factor. The same tension stretches the tendon: the backbone's travel per degree
     scales too, but only in the share ``sigma`` of it that is the tendon's stretch (the rest is the wing's
-    geometry), so the compliance changes by log(1/gain) = sigma x the band's log factor, 0 < sigma <= 1
-    (``pretension_loop = 1`` is sigma = 1). When the pre-tension was chosen first (it explains the log's
-    change on its own, the friction refines it) and the band and the compliance moved the same way, the
-    band by at least as much, the friction is read as the tension's: kept in the model (it predicts the
-    log), reported apart from the verdict, with a note. A friction that moved against the compliance, or
-    less than it, or that was chosen first, stays named. What this rule gets wrong: a sheath whose own
-    friction changed (wear, lubricant, routing) in the same direction as a re-rigging, by more than the
+    geometry): a band factor F goes with a compliance factor 1 + sigma (F - 1), 0 < sigma <= 1, the
+    same way and less (``pretension_loop = 1`` is sigma = 1). Against the model's own effects, the band in
+    travel is friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain. When the
+    pre-tension won the first round on its own (it explains the log's change alone; the friction refines
+    it) and the band and the compliance moved the same way, the band by at least as much, the friction is
+    read as the tension's: kept in the model (it predicts the log), reported apart from the verdict with
+    its band and compliance factors and ``stretch_share``, the ratio of their logarithms (sigma for small
+    changes), with a note. A friction that moved against the compliance, or less than it, or a path the
+    pre-tension did not lead alone (the friction first, a runner-up's path, two that entered together),
+    keeps it named, and so does the capstan-stall form. What this rule gets wrong: a sheath whose own
+    friction changed (wear, lubricant, routing) the same way as a re-rigging, by more than the
     re-rigging's share; measuring the tension at rest tells them apart."""
-    if not {"friction", "pretension"} <= set(selected) or eff.has_capstan:
-        return None
-    if chosen_round.get("pretension", 0) >= chosen_round.get("friction", 0):
+    if not {"friction", "pretension"} <= set(selected) or eff.has_capstan or first_alone != "pretension":
         return None
     compliance = math.log(base.pretension_gain / eff.pretension_gain)
-    band = math.log(eff.friction_scale / base.friction_scale) + (compliance if eff.pretension_loop else 0.0)
+    band = (math.log(eff.friction_scale / base.friction_scale)
+            - (math.log(eff.pretension_gain) if eff.pretension_loop else 0.0)
+            + (math.log(base.pretension_gain) if base.pretension_loop else 0.0))
     if not (compliance * band > 0.0 and abs(band) >= abs(compliance)):
         return None
     sigma = compliance / band
@@ -708,6 +716,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
             alt = path if d == opt.decision else decide(ex, d, opt.max_effects)
             alternatives.append({"decision": d.to_dict(), "verdict": list(alt.named),
                                  "effects": {n: alt.fit.values([n])[n] for n in alt.named},
+                                 "kept_unnamed": sorted(alt.unnamed),
                                  "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
                                  "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
     selected = list(path.named)
@@ -734,7 +743,8 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         notes.append(h["meaning"])
     by_airspeed = [{"effect": b} | r for b, r in path.kept_by_airspeed.items()]
     notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
-    notes += whole_loop_notes(selected, cur.effects)
+    if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor
+        notes += whole_loop_notes(selected, cur.effects)
     notes += [airspeed_note(b) for b in by_airspeed]
     residual_is_noise = white.passed and indep.passed
     if not selected and not residual_is_noise:

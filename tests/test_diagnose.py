@@ -265,27 +265,43 @@ def test_a_friction_that_took_its_drag_with_it_is_named_alone_and_its_lag_kept()
     assert d.model.meta["verdict"] == ["friction"]
 
 
-@pytest.mark.parametrize("field, rounds, folded", [
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), (1, 2), True),  # sigma ~0.37
-    (Effects(pretension_offset_mm=0.2, pretension_gain=1.05, friction_scale=0.85), (1, 2), True),  # softer: narrower
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=0.85), (1, 2), False),  # against it
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.8, friction_scale=1.1), (1, 2), False),  # less than it
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), (2, 1), False),  # friction first
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, capstan_pull_ratio=0.01), (1, 2), False),  # a stall
+@pytest.mark.parametrize("field, first, folded", [
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), "pretension", True),  # ~0.37
+    (Effects(pretension_offset_mm=0.2, pretension_gain=1.05, friction_scale=0.85), "pretension", True),  # softer
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=0.85), "pretension", False),  # against
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.8, friction_scale=1.1), "pretension", False),  # less
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), "friction", False),  # friction led
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), None, False),  # no lone leader
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, capstan_pull_ratio=0.01), "pretension", False),  # stall
     # the whole-loop form already scales the band with the compliance: the friction adds the rest of it
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=1.1), (1, 2), True),
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=0.97), (1, 2),
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=1.1), "pretension",
+     True),
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=0.97), "pretension",
      False),  # the friction takes back part of what the loop form scaled: not the tension's
 ])
-def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(field, rounds, folded):
-    order = dict(zip(("pretension", "friction"), rounds, strict=True))
-    got = tension_band(("pretension", "friction"), order, field, Effects())
+def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(field, first, folded):
+    got = tension_band(("pretension", "friction"), first, field, Effects())
     assert (got is not None) == folded
     if folded:
         assert 0.0 < got["stretch_share"] <= 1.0 and "capstan" in got["reason"]
         assert got["band_factor"] == pytest.approx(field.friction_scale / (field.pretension_gain if
                                                                            field.pretension_loop else 1.0))
-    assert tension_band(("pretension",), {"pretension": 1}, field, Effects()) is None
+        assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
+    assert tension_band(("pretension",), "pretension", field, Effects()) is None
+
+
+@pytest.mark.parametrize("bench, field, folded", [
+    # the bench's whole-loop pre-tension had scaled its band by 1 / 0.8; the field's backbone form leaves the band
+    # at 1.1 x the unscaled one: x0.88 against the bench, against the compliance's x1.05
+    (Effects(pretension_gain=0.8, pretension_loop=1.0), Effects(pretension_gain=0.76, friction_scale=1.1), False),
+    # the bench's backbone form, the field's whole loop: band x1 / 0.84 = x1.19 against the compliance's x0.95
+    (Effects(pretension_gain=0.8), Effects(pretension_gain=0.84, pretension_loop=1.0), False),
+    # the same forms, a bench friction: the band x1.2 / 1.1 with the compliance x0.8 / 0.76
+    (Effects(pretension_gain=0.8, friction_scale=1.1), Effects(pretension_gain=0.76, friction_scale=1.2), True),
+])
+def test_the_band_and_the_compliance_are_judged_against_the_models_own_effects(bench, field, folded):
+    got = tension_band(("pretension", "friction"), "pretension", field, bench)
+    assert (got is not None) == folded
 
 
 def test_a_retensioned_rig_whose_band_followed_is_named_pretension_and_its_friction_kept():
