@@ -38,7 +38,10 @@
    rate-dependent part (a lubricated sheath's viscous drag, ``viscous_lag``):
    kept in the model, not named. So is a friction chosen after a pre-tension
    whose band moved with the rig's compliance, and by at least as much: a
-   sheath's band follows the tension it carries (``tension_band``).
+   sheath's band follows the tension it carries (``tension_band``). A capstan
+   stall that less than doubles across the log's travel and that the held-out
+   test cannot tell from a fixed play is named as that play, backlash, its
+   limit (``stall_as_play``).
 3. **How far.** Held-out RMS before and after, and the share of the gap closed
    ``(MSE_nominal - MSE_augmented) / (MSE_nominal - noise^2)``, overall and in
    every cell of step 1.
@@ -152,6 +155,10 @@ class Decision:
         kw: dict = {k: float(d[k]) for k in ("alpha", "min_share", "min_gain", "min_total") if k in d}
         return cls(**kw, parsimony=bool(d.get("parsimony", False)))
 
+
+# a capstan stall growing less than this across the log's travel is taken for a fixed play when the held-out
+# test cannot tell them apart (``stall_as_play``): its zero more than the travel's span below the travel
+STALL_AS_PLAY_GROWTH = 2.0
 
 # a small grid around the default, for ``alternatives`` (how the verdict depends on the decision)
 DECISION_GRID: tuple[Decision, ...] = tuple(
@@ -496,6 +503,10 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         if d.parsimony:  # the simplest of the equal explanations
             equal = [j for j in acc if j is best or ex.ties(ex.gain(j.fit, best.fit), d)]
             best = min(equal, key=lambda j: (j.fit.params_of[j.name], -j.penalised))
+        play = stall_as_play(ex, d, best, acc)
+        if play is not None:
+            notes.append(play["reason"])
+            best = play["judged"]
         if rnd == 0:
             # the runner-up gets a second round of its own only when it explains nearly as much (at least half
             # the winner's gain): only then can the winner be imitating it together with another effect
@@ -570,6 +581,39 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
     return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up, to_load,
                 kept_by_airspeed, unnamed)
+
+
+def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) -> dict | None:
+    """The backlash to name instead of a capstan stall the held-out test cannot tell from it (else None).
+
+    A capstan stall is a play at every reversal that grows with the tension (``capstan_zero_mm`` where the
+    tendon goes slack, the ratios its growth per mm above it); with its zero far below the travel and small
+    ratios it tends to a fixed play, a backlash: the backlash is the stall's limit, one parameter against
+    three. When friction wins a round in that form with a stall that less than doubles across the log's
+    travel (its zero more than the travel's span below it: closer to a fixed play than to one in proportion
+    to the travel), only by a margin the held-out test does not find (not significant at the ambiguity
+    level, or not material), and backlash passes the round's test too, nothing in the log shows the play
+    growing with the tension, and the play is named. A stall that grows more across the travel, and a
+    friction in its band form (the loop widens, no play), keep their place."""
+    if best.name != "friction" or not best.fit.effects.has_capstan:
+        return None
+    eff = best.fit.effects
+    lo, hi = np.percentile(ex.prob.u, [0.5, 99.5])  # the log's travel, as the fit's search takes it
+    above = float(lo) - eff.capstan_zero_mm
+    growth = (float(hi) - eff.capstan_zero_mm) / above if above > 0 else math.inf
+    if not growth < STALL_AS_PLAY_GROWTH:
+        return None
+    play = next((j for j in acc if j.name == "backlash"), None)
+    if play is None or not ex.ties(ex.gain(play.fit, best.fit), d):
+        return None
+    return {"judged": play, "growth": growth,
+            "reason": f"friction's capstan stall (a play growing with the tension, x{eff.capstan_pull_ratio:.3g} "
+                      f"pulling and x{eff.capstan_release_ratio:.3g} releasing per mm above "
+                      f"{eff.capstan_zero_mm:.3g} mm, x{growth:.2f} across the log's travel) explains the log no "
+                      f"better than a fixed play on the held-out blocks: the play is the stall's limit and "
+                      f"nothing shows it growing with the tension, so backlash is named (to tell them apart: "
+                      f"minor loops at several mean tendon positions; a stall's play grows with the tension, a "
+                      f"backlash's does not)"}
 
 
 def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict | None:

@@ -626,22 +626,57 @@ def test_a_stall_that_does_not_grow_with_the_tension_is_not_kept_as_friction():
     assert d.verdict == ["backlash"], d.verdict
 
 
-def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
-    """A small capstan stall that grows little over the log's travel is a dead band to the held-out test: with
-    parsimony the one-parameter backlash is named and friction reported as equally good; a stall that clearly
-    grows with the tension is still friction."""
-    from warpbridge.model.diagnose import Decision
-
+def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlash():
+    """A small capstan stall that grows little over the log's travel is a dead band to the held-out test: the
+    fixed play (its limit, one parameter) is named, friction reported as equally good and the reason given in a
+    note; a stall that clearly grows with the tension is still friction, with no rival."""
     t, u, _, _ = make_log(Effects(), seed=0)
     span = float(u.max() - u.min())  # the stall's slack travel 1.5 spans below the travel: a quarter into its search
     slight = Effects(capstan_pull_ratio=0.004, capstan_release_ratio=0.004, capstan_zero_mm=float(u.min()) - 1.5 * span)
-    for eff, plain, parsimonious in ((slight, ["friction"], ["backlash"]), (GROWING_STALL, ["friction"], ["friction"])):
+    for eff, want in ((slight, ["backlash"]), (GROWING_STALL, ["friction"])):
         t, u, w, v = make_log(eff, seed=0)
+        d = diagnose(t, u, w, v, nominal_model())
+        assert d.verdict == want, (eff, d.verdict)
+        equal = [set(a["equally_good"]) for a in d.report["ambiguities"]]
+        assert equal == ([{"friction", "backlash"}] if eff is slight else []), equal
+        stall_notes = [n for n in d.report["notes"] if "capstan stall" in n and "backlash is named" in n]
+        assert len(stall_notes) == (1 if eff is slight else 0), d.report["notes"]
+
+
+@pytest.mark.parametrize("zero, ties, named", [
+    (-12.0, True, "backlash"),  # x1.5 across the travel: a fixed play to the eye and to the test
+    (-12.0, False, "friction"),  # the test tells them apart: the stall stays
+    (-2.0, True, "friction"),  # x3 across the travel: it grows with the tension, whatever the test says
+    (1.5, True, "friction"),  # the tendon slack inside the travel
+])
+def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_play(zero, ties, named):
+    from types import SimpleNamespace
+
+    from warpbridge.model.diagnose import Decision, stall_as_play
+
+    u = np.linspace(2.0, 10.0, 1001)  # the log's travel: 2..10 mm
+    stall = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=zero)
+    best = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=stall))
+    play = SimpleNamespace(name="backlash", fit=SimpleNamespace(effects=Effects(backlash_mm=0.2)))
+    ex = SimpleNamespace(prob=SimpleNamespace(u=u), gain=lambda old, new: None, ties=lambda g, d: ties)
+    r = stall_as_play(ex, Decision(), best, [best, play])
+    assert (r["judged"].name if r else "friction") == named
+    assert stall_as_play(ex, Decision(), best, [best]) is None  # no backlash admitted: nothing to name instead
+
+
+def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
+    """A sensor lag of 10 ms is a delay to the held-out test at these rates: with parsimony the one-parameter
+    delay is named and the lag reported as equally good; a 40 ms lag, which the test tells from a delay, is
+    named under both decisions."""
+    from warpbridge.model.diagnose import Decision
+
+    for tau, plain, parsimonious in ((0.01, ["sensor_lag"], ["delay"]), (0.04, ["sensor_lag"], ["sensor_lag"])):
+        t, u, w, v = make_log(Effects(sensor_tau_s=tau), seed=0)
         for parsimony, want in ((False, plain), (True, parsimonious)):
             d = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(parsimony=parsimony)))
-            assert d.verdict == want, (eff, parsimony, d.verdict)
+            assert d.verdict == want, (tau, parsimony, d.verdict)
             equal = [set(a["equally_good"]) for a in d.report["ambiguities"]]
-            assert equal == ([{"friction", "backlash"}] if eff is slight else []), equal
+            assert equal == ([{"sensor_lag", "delay"}] if tau < 0.02 else []), equal
 
 
 def test_an_effect_that_closes_little_of_the_nominals_gap_is_not_named_under_min_total():
