@@ -73,6 +73,7 @@ from warpbridge.model.diag_stats import (
 )
 from warpbridge.model.diag_where import Cells, cells, gap_closed, split
 from warpbridge.model.effects import (
+    CAPSTAN_FIELDS,
     EFFECT_FIELDS,
     EFFECT_NAMES,
     Effects,
@@ -458,6 +459,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     together: dict[str, PairedGain] = {}
     entered_together: tuple[str, ...] = ()
     from_runner_up = False
+    play_note = ""  # ``stall_as_play``'s reason, said only if the backlash it named stays in the verdict
     for rnd in range(min(max_effects, len(ex.names))):
         if len(sel) >= max_effects:
             break
@@ -505,7 +507,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
             best = min(equal, key=lambda j: (j.fit.params_of[j.name], -j.penalised))
         play = stall_as_play(ex, d, best, acc)
         if play is not None:
-            notes.append(play["reason"])
+            play_note = play["reason"]
             best = play["judged"]
         if rnd == 0:
             # the runner-up gets a second round of its own only when it explains nearly as much (at least half
@@ -563,6 +565,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     kept_by_airspeed = {k: v for k, v in kept_by_airspeed.items() if k in sel}
     if sel:
         cur = ex.final(sel, cur)
+    if play_note and "backlash" in sel and "friction" not in sel:
+        notes.append(play_note)
     unnamed: dict[str, dict] = {}
     viscous = viscous_lag(sel, cur.effects, ex.base)
     if viscous is not None:  # chosen and fitted as any effect, but the friction's: not named
@@ -593,11 +597,13 @@ def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) ->
     travel (its zero more than the travel's span below it: closer to a fixed play than to one in proportion
     to the travel), only by a margin the held-out test does not find (not significant at the ambiguity
     level, or not material), and backlash passes the round's test too, nothing in the log shows the play
-    growing with the tension, and the play is named. A stall that grows more across the travel, and a
-    friction in its band form (the loop widens, no play), keep their place."""
-    if best.name != "friction" or not best.fit.effects.has_capstan:
-        return None
+    growing with the tension, and the play is named (``decide`` says why in a note when the backlash stays
+    in the verdict). A stall that grows more across the travel, a stall the model already carried on the
+    bench, and a friction in its band form (the loop widens, no play) keep their place."""
     eff = best.fit.effects
+    if best.name != "friction" or not eff.has_capstan \
+            or all(getattr(eff, f) == getattr(ex.base, f) for f in CAPSTAN_FIELDS):  # a stall of the bench's
+        return None
     lo, hi = np.percentile(ex.prob.u, [0.5, 99.5])  # the log's travel, as the fit's search takes it
     above = float(lo) - eff.capstan_zero_mm
     growth = (float(hi) - eff.capstan_zero_mm) / above if above > 0 else math.inf
@@ -606,7 +612,7 @@ def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) ->
     play = next((j for j in acc if j.name == "backlash"), None)
     if play is None or not ex.ties(ex.gain(play.fit, best.fit), d):
         return None
-    return {"judged": play, "growth": growth,
+    return {"judged": play,
             "reason": f"friction's capstan stall (a play growing with the tension, x{eff.capstan_pull_ratio:.3g} "
                       f"pulling and x{eff.capstan_release_ratio:.3g} releasing per mm above "
                       f"{eff.capstan_zero_mm:.3g} mm, x{growth:.2f} across the log's travel) explains the log no "

@@ -631,7 +631,7 @@ def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlas
     fixed play (its limit, one parameter) is named, friction reported as equally good and the reason given in a
     note; a stall that clearly grows with the tension is still friction, with no rival."""
     t, u, _, _ = make_log(Effects(), seed=0)
-    span = float(u.max() - u.min())  # the stall's slack travel 1.5 spans below the travel: a quarter into its search
+    span = float(u.max() - u.min())  # the stall's slack travel 1.5 spans below the travel: 3/4 into its search
     slight = Effects(capstan_pull_ratio=0.004, capstan_release_ratio=0.004, capstan_zero_mm=float(u.min()) - 1.5 * span)
     for eff, want in ((slight, ["backlash"]), (GROWING_STALL, ["friction"])):
         t, u, w, v = make_log(eff, seed=0)
@@ -647,7 +647,7 @@ def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlas
     (-12.0, True, "backlash"),  # x1.5 across the travel: a fixed play to the eye and to the test
     (-12.0, False, "friction"),  # the test tells them apart: the stall stays
     (-2.0, True, "friction"),  # x3 across the travel: it grows with the tension, whatever the test says
-    (1.5, True, "friction"),  # the tendon slack inside the travel
+    (5.0, True, "friction"),  # the tendon slack inside the travel
 ])
 def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_play(zero, ties, named):
     from types import SimpleNamespace
@@ -658,10 +658,15 @@ def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_pl
     stall = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=zero)
     best = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=stall))
     play = SimpleNamespace(name="backlash", fit=SimpleNamespace(effects=Effects(backlash_mm=0.2)))
-    ex = SimpleNamespace(prob=SimpleNamespace(u=u), gain=lambda old, new: None, ties=lambda g, d: ties)
+    ex = SimpleNamespace(prob=SimpleNamespace(u=u), base=Effects(), gain=lambda old, new: None,
+                         ties=lambda g, d: ties)
     r = stall_as_play(ex, Decision(), best, [best, play])
     assert (r["judged"].name if r else "friction") == named
     assert stall_as_play(ex, Decision(), best, [best]) is None  # no backlash admitted: nothing to name instead
+    band = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=Effects(friction_scale=1.3)))
+    assert stall_as_play(ex, Decision(), band, [band, play]) is None  # the band form is no play
+    ex.base = stall  # the stall the bench model already carried, not the field's
+    assert stall_as_play(ex, Decision(), best, [best, play]) is None
 
 
 def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
