@@ -604,9 +604,9 @@ def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) ->
     if best.name != "friction" or not eff.has_capstan \
             or all(getattr(eff, f) == getattr(ex.base, f) for f in CAPSTAN_FIELDS):  # a stall of the bench's
         return None
-    lo, hi = np.percentile(ex.prob.u, [0.5, 99.5])  # the log's travel, as the fit's search takes it
-    above = float(lo) - eff.capstan_zero_mm
-    growth = (float(hi) - eff.capstan_zero_mm) / above if above > 0 else math.inf
+    lo, hi = ex.prob.travel  # the log's travel, as the fit's search takes it
+    above = lo - eff.capstan_zero_mm
+    growth = (hi - eff.capstan_zero_mm) / above if above > 0 else math.inf
     if not growth < STALL_AS_PLAY_GROWTH:
         return None
     play = next((j for j in acc if j.name == "backlash"), None)

@@ -644,7 +644,7 @@ def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlas
 
 
 @pytest.mark.parametrize("zero, ties, named", [
-    (-12.0, True, "backlash"),  # x1.5 across the travel: a fixed play to the eye and to the test
+    (-12.0, True, "backlash"),  # x1.56 across the travel: a fixed play to the eye and to the test
     (-12.0, False, "friction"),  # the test tells them apart: the stall stays
     (-2.0, True, "friction"),  # x3 across the travel: it grows with the tension, whatever the test says
     (5.0, True, "friction"),  # the tendon slack inside the travel
@@ -652,13 +652,14 @@ def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlas
 def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_play(zero, ties, named):
     from types import SimpleNamespace
 
+    from warpbridge.model.diag_fit import travel_range
     from warpbridge.model.diagnose import Decision, stall_as_play
 
     u = np.linspace(2.0, 10.0, 1001)  # the log's travel: 2..10 mm
     stall = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=zero)
     best = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=stall))
     play = SimpleNamespace(name="backlash", fit=SimpleNamespace(effects=Effects(backlash_mm=0.2)))
-    ex = SimpleNamespace(prob=SimpleNamespace(u=u), base=Effects(), gain=lambda old, new: None,
+    ex = SimpleNamespace(prob=SimpleNamespace(travel=travel_range(u)), base=Effects(), gain=lambda old, new: None,
                          ties=lambda g, d: ties)
     r = stall_as_play(ex, Decision(), best, [best, play])
     assert (r["judged"].name if r else "friction") == named
