@@ -82,6 +82,7 @@ class Bench:
         self.cli = cli
         self.tmp = tmp
         self.models: dict[str, tuple[Path, dict, np.ndarray, float]] = {}
+        self.folds: list[str] = []  # fits whose first search's backbone folded inside the working range
 
     def identify(self, name: str, rows: np.ndarray) -> tuple[dict, float]:
         log = write(rows, self.tmp / f"{name}.csv")
@@ -93,6 +94,10 @@ class Bench:
         train = rows[:, 0] < fit["split_time_s"]
         c1, c0 = np.polyfit(rows[train, 1], rows[train, 2], 1)
         self.models[name] = (model, fit, np.array([c0, c1]), wall)
+        if "backbone_fold_deg" in fit:
+            lo, hi = fit["working_range_deg"]
+            self.folds.append(f"{name} (folded at {fit['backbone_fold_deg']:.1f} deg inside {lo:.1f}..{hi:.1f}; "
+                              + ("searched again and kept)" if fit["fold_search_kept"] else "none without a fold)"))
         return fit, wall
 
     def predict(self, name: str, rows: np.ndarray, tag: str, corrected: bool = False) -> np.ndarray:
@@ -211,6 +216,8 @@ def main(data: Path) -> None:
                  for part, cover, m in parts],
                 ["part", "samples", "GBW MSE deg^2 (z0 estimated)", "with predict --correction",
                  "GBW MSE deg^2 (z0 = 0)"]))
+    print(f"identifications whose first search's backbone folded inside the working range and were searched "
+          f"again: {', '.join(b.folds) or 'none'}")
     print(f"load average at end {os.getloadavg()[0]:.1f}")
 
 

@@ -63,7 +63,7 @@ from warpbridge.model.effects import (
     form_parameters,
     sensor_filtered,
 )
-from warpbridge.model.identify import reversal_indices, warmup_end
+from warpbridge.model.identify import central_range, reversal_indices, warmup_end
 from warpbridge.model.initial_state import algebraic_z0, reachable_band
 from warpbridge.model.model_error import ErrorModel
 
@@ -214,17 +214,11 @@ class Box:
         return min(max(s, 0.0), 1.0)
 
 
-def travel_range(u: np.ndarray) -> tuple[float, float]:
-    """The log's travel as the fits' searches take it: the 0.5 and 99.5 percentiles of the input."""
-    lo, hi = np.percentile(u, [0.5, 99.5])
-    return float(lo), float(hi)
-
-
 def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
     """Search boxes of an effect's nonlinear parameters, scaled to the log (empty: linear effect)."""
     dur = float(t[-1] - t[0])
     fs = (t.size - 1) / max(dur, 1e-12)
-    lo_u, hi_u = travel_range(u)
+    lo_u, hi_u = central_range(u)
     span = max(float(hi_u - lo_u), 1e-9)
     tmax = min(0.5, 0.05 * dur)
     tmin = min(0.5 / fs, 0.1 * tmax)
@@ -357,7 +351,7 @@ class Problem:
         self.base = effects
         self.z0 = float(z0)
         self.error_model = error_model if error_model is not None and error_model.theta.size else None
-        self.travel = travel_range(self.u)
+        self.travel = central_range(self.u)
         self.travel_step = travel_step * max(self.travel[1] - self.travel[0], 1e-9)  # 0: every sample
         self.split = split or make_split(self.t, self.u)
         self.tau = self.t - self.t[0]

@@ -42,6 +42,15 @@ What makes this fast and robust:
   a candidate that needs more sub-steps than its budget is rejected instead of
   being integrated for as long as a thousand ordinary ones; the search stops
   when its population agrees within ``SEARCH_SPREAD``.
+- A backbone that does not fold where the wing flies: u = a1 w^2 + a2 w + a3
+  turns back at its vertex, and beyond it the forward map has no warp to give
+  (it holds the vertex). A bench log that covers only part of the travel can be
+  fitted best by a backbone whose vertex sits just past its lowest warp, and
+  every field log that goes lower is then predicted flat there. When the
+  search's result folds inside the working range (``working_range``: the log's
+  warp widened by ``FOLD_MARGIN`` of its span each way, and a one-sided wing's
+  down to rest, zero warp), the search runs again with such backbones
+  penalised and its result is kept.
 
 Everything here is pure numerics; progress is reported through a callback.
 """
@@ -76,6 +85,39 @@ BOUNDS_ONE_SIDED = [(1.0, 5.0), (-2.0, 2.5), (-2.5, 0.5), (-2.5, 0.5), (-8.0, 0.
                     (-1.5, 1.5), (-0.5, 3.0), (-2.0, 2.0)]
 BOUNDS_TWO_SIDED = BOUNDS_ONE_SIDED + [(-8.0, 8.0), (-8.0, 8.0)]
 EDGE_FRAC = 0.01  # a search result this close (share of the range) to the exponent's upper limit is at it
+FOLD_MARGIN = 0.5  # the working range reaches this share of the log's warp span beyond it on each side
+FOLD_PENALTY = 1e3  # cost of a backbone folding inside the working range (a fit costs well under 1), plus its depth
+
+
+def central_range(x: np.ndarray) -> tuple[float, float]:
+    """A log's range without its outliers: the 0.5 and 99.5 percentiles (of its travel, or of its warp)."""
+    lo, hi = np.percentile(x, [0.5, 99.5])
+    return float(lo), float(hi)
+
+
+def working_range(w: np.ndarray, two_sided: bool) -> tuple[float, float]:
+    """Warp range (deg) on which the backbone must not fold: the log's warp (0.5 and 99.5 percentiles) widened
+    by ``FOLD_MARGIN`` of its span each way; a one-sided wing's from rest (zero warp) instead of below it."""
+    lo, hi = central_range(w)
+    m = FOLD_MARGIN * (hi - lo)
+    lo, hi = lo - m, hi + m
+    if not two_sided:
+        if lo + hi > 0:
+            lo = 0.0
+        else:
+            hi = 0.0
+    return lo, hi
+
+
+def fold_depth(thetas: np.ndarray, c: float, lo: float, hi: float) -> np.ndarray:
+    """How deep inside [lo, hi] (normalised warp) each search vector's backbone folds: the distance of its
+    vertex from the nearer end, as a share of the range; 0 when it does not fold inside."""
+    th = np.atleast_2d(thetas)
+    a1, a2 = th[:, 6], th[:, 7]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = c - a2 / (2.0 * a1)
+        d = np.minimum(v - lo, hi - v) / (hi - lo)
+    return np.where(np.isfinite(d) & (d > 0), d, 0.0)
 
 
 @dataclass(frozen=True)
@@ -92,10 +134,10 @@ class Normaliser:
 
     @classmethod
     def from_data(cls, u: np.ndarray, w: np.ndarray) -> Normaliser:
-        wlo, whi = np.percentile(w, [0.5, 99.5])
-        ws = float(whi - wlo) / 2.0
-        lo, hi = np.percentile(u, [0.5, 99.5])
-        us = float(hi - lo) / 2.0
+        wlo, whi = central_range(w)
+        ws = (whi - wlo) / 2.0
+        lo, hi = central_range(u)
+        us = (hi - lo) / 2.0
         if not ws > 0 or not us > 0:
             raise ValueError("the log's warp or tendon input does not vary")
         return cls(ws=ws, uc=float(np.median(u)), us=us, c=float(0.5 * (wlo + whi)) / ws)
@@ -234,6 +276,7 @@ class IdentResult:
     trace: SearchTrace | None = field(default=None, repr=False)
     support: Support | None = None
     delay_s: float = 0.0  # transport delay in front of the model (s): the model sees u(t - delay_s)
+    travel_mm: tuple[float, float] | None = None  # the log's tendon travel (0.5 and 99.5 percentiles, mm)
 
     def fit_dict(self) -> dict:
         d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
@@ -241,10 +284,15 @@ class IdentResult:
              "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
              "evaluations": self.evaluations, "method": "differential-evolution + nelder-mead",
              "z0_start_of_log": self.z0, "delay_s": self.delay_s}
+        if self.travel_mm is not None:
+            d["travel_mm"] = list(self.travel_mm)
         if self.support is not None:
             d |= {"supported": self.support.supported, "support": self.support.reason}
         if self.trace is not None and self.trace.restarts:  # the kept model came from the seed after --seed
             d |= {"searched_again": True, "second_search_kept": self.trace.restart_kept}
+        if self.trace is not None and self.trace.fold_deg is not None:
+            d |= {"backbone_fold_deg": self.trace.fold_deg, "working_range_deg": list(self.trace.working_range_deg),
+                  "fold_search_kept": self.trace.fold_kept}
         return d
 
 
@@ -460,9 +508,11 @@ class _Objective:
     more is no model of a wing (a state stuck where it is unstable, or a saturation far stiffer
     than the data) and is rejected at a bounded cost instead of a thousand ordinary evaluations'."""
 
-    def __init__(self, path: FitPath, c: float = 0.0, tol: float = FIT_TOL_Z) -> None:
+    def __init__(self, path: FitPath, c: float = 0.0, tol: float = FIT_TOL_Z,
+                 fold: tuple[float, float] | None = None) -> None:
         self.path = path
         self.c = c
+        self.fold = fold  # (lo, hi) normalised warp: backbones folding inside cost FOLD_PENALTY (None: no check)
         self.wsum = float(path.weight.sum())
         self.tol = float(tol)
         self.calls = 0
@@ -491,6 +541,9 @@ class _Objective:
         self.calls += P.shape[0]
         out = out / self.wsum
         out[~np.isfinite(out)] = 1e6
+        if self.fold is not None:
+            depth = fold_depth(thetas, self.c, *self.fold)
+            out = np.where(depth > 0, FOLD_PENALTY * (1.0 + depth), out)
         return out
 
     def one(self, theta: np.ndarray) -> float:
@@ -534,6 +587,9 @@ class SearchTrace:
     stopped_early: bool = False
     restarts: int = 0  # searches run again because the first settled at the exponent's upper limit
     restart_kept: bool = False  # the search run again fitted the training part better and was kept
+    fold_deg: float | None = None  # where the first search's backbone folded inside the working range (deg)
+    working_range_deg: tuple[float, float] | None = None
+    fold_kept: bool = False  # the search run again with the fold kept outside the working range was kept
 
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
@@ -569,9 +625,11 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     # compressed training path: the model only needs reversals and a coarse grid; every candidate
     # starts from the state the first samples imply for it, so the whole training part is scored.
     # The global search scores on a bounded part of it, the polish on a larger one.
-    search = _Objective(FitPath.build(u_hat, w_hat, n_train_end, min(SEARCH_POINTS, max_fit_points),
-                                      SEARCH_REVERSALS), norm.c)
-    obj = _Objective(FitPath.build(u_hat, w_hat, n_train_end, max_fit_points, POLISH_REVERSALS), norm.c)
+    search_path = FitPath.build(u_hat, w_hat, n_train_end, min(SEARCH_POINTS, max_fit_points), SEARCH_REVERSALS)
+    polish_path = FitPath.build(u_hat, w_hat, n_train_end, max_fit_points, POLISH_REVERSALS)
+    w_lo, w_hi = working_range(w, two_sided)
+    fold_hat = (w_lo / norm.ws, w_hi / norm.ws)
+    calls = [0]  # evaluations over every search
 
     prior = prior if prior is not None else BoucWenParams.paper()
     x0 = normalised_to_theta(norm.to_normalised(prior), two_sided, norm.c)
@@ -586,7 +644,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if intermediate_result is not None:
             trace.best.append(float(intermediate_result.fun))
         if progress:  # the generations of this search (a second one counts from 1 again)
-            progress("search" if not trace.restarts else "search again", trace.generations - first_search[0],
+            progress("search" if not first_search[0] else "search again", trace.generations - first_search[0],
                      maxiter)
         if intermediate_result is not None:
             e = np.asarray(intermediate_result.population_energies)
@@ -602,8 +660,17 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if progress and done % 20 == 0:
             progress("polish", min(done, polish_evals), polish_evals)
 
-    def search_and_polish(de_seed: int) -> tuple[np.ndarray, float]:
-        """Global search, delay scan and polish from one random seed: (theta, transport delay s)."""
+    def search_and_polish(de_seed: int, fold: tuple[float, float] | None = None) -> tuple[np.ndarray, float]:
+        """Global search, delay scan and polish from one random seed: (theta, transport delay s); with ``fold``,
+        backbones folding inside that range (normalised warp) are penalised."""
+        search = _Objective(search_path, norm.c, fold=fold)
+        obj = _Objective(polish_path, norm.c, fold=fold)
+        try:
+            return _search_and_polish(de_seed, search, obj, fold)
+        finally:
+            calls[0] += search.calls + obj.calls
+
+    def _search_and_polish(de_seed: int, search: _Objective, obj: _Objective, fold) -> tuple[np.ndarray, float]:
         de = differential_evolution(
             lambda X: search.many(np.atleast_2d(X.T)), bounds, popsize=popsize, maxiter=maxiter, tol=SEARCH_SPREAD,
             atol=0.0, mutation=(0.5, 1.0), recombination=0.9, seed=de_seed, polish=False, init="latinhypercube",
@@ -616,11 +683,11 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if max_delay_s > 0:
             no_delay_start = x_start
             delay, x_start, scan_calls = _delay_search(t, u_hat, w_hat, n_train_end, norm.c, x_start, lo, hi,
-                                                       max_delay_s, progress)
+                                                       max_delay_s, progress, fold)
             search.calls += scan_calls
         if delay > 0:
             obj_d = _Objective(FitPath.build(delayed(t, u_hat, delay), w_hat, n_train_end, max_fit_points,
-                                             POLISH_REVERSALS), norm.c)
+                                             POLISH_REVERSALS), norm.c, fold=fold)
             best, cost = _polish(obj_d, x_start, lo, hi, polish_evals, _nm_cb)
             # the scan judged on a smaller path with short polishes: the delay is kept only if the fully polished
             # model with it still beats the one without it (the same amount of polish) on the polish's path
@@ -655,15 +722,29 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             trace.restart_kept = True
             best, delay = best2, delay2
             params, z0, w_pred, train_rms = again
+    if fold_depth(best, norm.c, *fold_hat)[0] > 0:
+        trace.fold_deg = float(norm.ws * (norm.c - best[7] / (2.0 * best[6])))
+        trace.working_range_deg = (w_lo, w_hi)
+        log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: searching again with "
+                 "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
+        first_search[:] = [trace.generations, trace.polish_iterations]
+        best2, delay2 = search_and_polish(seed, fold_hat)
+        if fold_depth(best2, norm.c, *fold_hat)[0] > 0:
+            log.warning("no backbone without a fold inside the working range fits: the first search's model kept")
+        else:
+            trace.fold_kept = True
+            best, delay = best2, delay2
+            params, z0, w_pred, train_rms = evaluate(best, delay)
     err = w_pred - w
     held_rms = float(np.sqrt(np.mean(err[held_mask] ** 2))) if held_mask.any() else float("nan")
     noise = noise_floor(w)
     return IdentResult(
         params=params, train_rms=train_rms, heldout_rms=held_rms, noise=noise,
         linear_heldout_rms=linear_baseline(u, w, train_mask, held_mask), n_train=int(train_mask.sum()),
-        n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=search.calls + obj.calls,
+        n_heldout=int(held_mask.sum()), two_sided=two_sided, evaluations=calls[0],
         split_time=split_time, w_pred=w_pred, train_mask=train_mask, heldout_mask=held_mask, z0=z0, trace=trace,
-        support=support_check(t, u, w, w_pred, train_mask, held_mask, noise), delay_s=delay)
+        support=support_check(t, u, w, w_pred, train_mask, held_mask, noise), delay_s=delay,
+        travel_mm=central_range(u))
 
 
 def at_exponent_edge(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray, frac: float) -> bool:
@@ -690,7 +771,8 @@ def _polish(obj: _Objective, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, eva
 
 
 def _delay_search(t, u_hat, w_hat, n_end: int, c: float, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                  max_delay_s: float, progress) -> tuple[float, np.ndarray, int]:
+                  max_delay_s: float, progress, fold: tuple[float, float] | None = None,
+                  ) -> tuple[float, np.ndarray, int]:
     """(delay s, theta to polish from, evaluations): the transport delay in front of the model that fits the
     training part best, by a short polish at no delay and at each delay of ``DELAY_GRID_S`` on the global
     search's path, each from the best model so far. The scan stops once two delays in a row cost half as
@@ -704,7 +786,7 @@ def _delay_search(t, u_hat, w_hat, n_end: int, c: float, theta0: np.ndarray, lo:
     def fit_at(d: float, start: np.ndarray) -> tuple[np.ndarray, float]:
         nonlocal calls
         x = delayed(t, u_hat, d) if d > 0 else u_hat
-        obj = _Objective(FitPath.build(x, w_hat, n_end, SEARCH_POINTS, SEARCH_REVERSALS), c)
+        obj = _Objective(FitPath.build(x, w_hat, n_end, SEARCH_POINTS, SEARCH_REVERSALS), c, fold=fold)
         out = _polish(obj, start, lo, hi, DELAY_SCAN_EVALS)
         calls += obj.calls
         return out

@@ -4,7 +4,9 @@ A model file holds the Bouc-Wen parameters, the initial state, optional
 effects (applied by ``predict`` and the bridge's feed-forward), the fit
 quality ``identify`` measured, free-form provenance and, optionally, the
 model-error model learned from the bench residual (``"model_error"``, read by
-``diagnose``). The field is optional both ways: files without it load as
+``diagnose``). ``fit.travel_mm`` is the tendon travel of the log the model was
+identified on: ``predict`` and ``diagnose`` say when a log leaves it, where the
+model extrapolates (``ModelFile.travel_outside``). The field is optional both ways: files without it load as
 before, and readers that predate it ignore it.
 
 ``"effect_forms": 2`` marks the forms of ``friction`` (the band of z scaled)
@@ -21,6 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.model.effects import Effects, fold_rigging, friction_core
 from warpbridge.model.model_error import ErrorModel
@@ -28,6 +32,7 @@ from warpbridge.model.plant import Plant
 
 FORMAT = "warpbridge-model/1"
 EFFECT_FORMS = 2
+TRAVEL_MARGIN = 0.02  # a sample this share of the identified travel's span beyond it is outside it
 
 
 def fold_legacy_rigging(params: BoucWenParams, effects: Effects) -> tuple[BoucWenParams, Effects]:
@@ -81,6 +86,24 @@ class ModelFile:
     @property
     def plant(self) -> Plant:
         return Plant(self.params, self.effects)
+
+    def travel_outside(self, u: np.ndarray) -> tuple[float, float, float, float] | None:
+        """(lo, hi, below, above): the tendon travel of the log the model was identified on (``fit.travel_mm``)
+        and the shares of a log's samples below and above it (2 % of its span of margin); None when the file does
+        not say (identified before it was recorded, or not identified)."""
+        tr = self.fit.extra.get("travel_mm")
+        if not (isinstance(tr, list | tuple) and len(tr) == 2):
+            return None
+        try:
+            lo, hi = float(tr[0]), float(tr[1])
+        except (TypeError, ValueError):
+            return None
+        u = np.asarray(u, dtype=np.float64)
+        u = u[np.isfinite(u)]
+        if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo) or not u.size:
+            return None
+        m = TRAVEL_MARGIN * (hi - lo)
+        return lo, hi, float(np.mean(u < lo - m)), float(np.mean(u > hi + m))
 
     def to_dict(self) -> dict:
         d = {

@@ -259,3 +259,49 @@ def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(wor
     out = capsys.readouterr().out
     assert "the first search ended at the upper limit of the exponent n: searched again" in out
     assert ("was kept" in out) != ("the first still fitted" in out)
+
+
+def test_identify_says_when_it_searched_again_without_a_fold_in_the_backbone(workdir, tmp_path, capsys, monkeypatch):
+    import warpbridge.model.identify as ident
+
+    capsys.readouterr()
+    assert run("identify", workdir / "bench.csv", "-o", tmp_path / "once.json", "--maxiter", 10) == 0
+    assert "folded" not in capsys.readouterr().out
+    assert "backbone_fold_deg" not in json.loads((tmp_path / "once.json").read_text())["fit"]
+    monkeypatch.setattr(ident, "FOLD_MARGIN", 1e3)  # a working range so wide that any curved backbone folds in it
+    assert run("identify", workdir / "bench.csv", "-o", tmp_path / "again.json", "--maxiter", 10) == 0
+    out = capsys.readouterr().out
+    assert "the first search's backbone folded at" in out and "that model was kept" in out
+    fit = json.loads((tmp_path / "again.json").read_text())["fit"]
+    lo, hi = fit["working_range_deg"]
+    assert lo < fit["backbone_fold_deg"] < hi and fit["fold_search_kept"] is True
+    p = json.loads((tmp_path / "again.json").read_text())["params"]
+    assert not lo < -p["a2"] / (2.0 * p["a1"]) < hi
+
+
+def test_predict_and_diagnose_say_when_a_log_leaves_the_identified_travel(workdir, tmp_path, capsys):
+    m = json.loads((workdir / "model.json").read_text())
+    bench = np.loadtxt(workdir / "bench.csv", delimiter=",", skiprows=1)
+    lo, hi = m["fit"]["travel_mm"]
+    assert (lo, hi) == pytest.approx(tuple(np.percentile(bench[:, 1], [0.5, 99.5])))
+    capsys.readouterr()
+    assert run("predict", workdir / "check.csv", "--model", workdir / "model.json", "-o", tmp_path / "p.csv") == 0
+    assert "beyond the travel" not in capsys.readouterr().err  # the check log stays inside it
+    log = np.loadtxt(workdir / "check.csv", delimiter=",", skiprows=1)
+    log[:, 1] = lo + (log[:, 1] - lo) * 1.5  # stretched: the top third of its travel beyond the bench's
+    out = np.mean(log[:, 1] > hi + 0.02 * (hi - lo))
+    assert 0.05 < out < 0.5
+    np.savetxt(tmp_path / "wide.csv", log[:, :3], delimiter=",", header="t,u,warp", comments="", fmt="%.9g")
+    assert run("predict", tmp_path / "wide.csv", "--model", workdir / "model.json", "-o", tmp_path / "p.csv") == 0
+    err = capsys.readouterr().err
+    assert f"{out:.0%} of the log drives the tendon beyond the travel of the log the model was identified on" in err
+    assert f"({lo:.2f}..{hi:.2f} mm; 0% below it, {out:.0%} above)" in err
+    assert run("diagnose", tmp_path / "wide.csv", "--model", workdir / "model.json", "--report", tmp_path / "r.json",
+               "--effects", "delay", "--quiet") == 0
+    notes = json.loads((tmp_path / "r.json").read_text())["log"]["notes"]
+    assert any("beyond the travel of the log the model was identified on" in n for n in notes)
+    del m["fit"]["travel_mm"]  # a model identified before the travel was recorded: nothing to say
+    (tmp_path / "old.json").write_text(json.dumps(m))
+    capsys.readouterr()
+    assert run("predict", tmp_path / "wide.csv", "--model", tmp_path / "old.json", "-o", tmp_path / "p.csv") == 0
+    assert "beyond the travel" not in capsys.readouterr().err

@@ -652,14 +652,14 @@ def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlas
 def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_play(zero, ties, named):
     from types import SimpleNamespace
 
-    from warpbridge.model.diag_fit import travel_range
     from warpbridge.model.diagnose import Decision, stall_as_play
+    from warpbridge.model.identify import central_range
 
     u = np.linspace(2.0, 10.0, 1001)  # the log's travel: 2..10 mm
     stall = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=zero)
     best = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=stall))
     play = SimpleNamespace(name="backlash", fit=SimpleNamespace(effects=Effects(backlash_mm=0.2)))
-    ex = SimpleNamespace(prob=SimpleNamespace(travel=travel_range(u)), base=Effects(), gain=lambda old, new: None,
+    ex = SimpleNamespace(prob=SimpleNamespace(travel=central_range(u)), base=Effects(), gain=lambda old, new: None,
                          ties=lambda g, d: ties)
     r = stall_as_play(ex, Decision(), best, [best, play])
     assert (r["judged"].name if r else "friction") == named

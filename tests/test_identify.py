@@ -79,6 +79,8 @@ def test_a_search_at_the_exponents_upper_limit_is_run_again_and_the_better_kept(
     _, w = noisy_log(u, 3)
     wrong = BoucWenParams(a1=-0.005, a2=0.5, a3=1.5, az=0.3, A=8.0, n=2.0, b=(5, -2, 1, -1, 3, -5))
     kw = dict(maxiter=8, polish_evals=60, prior=wrong)  # a short search from a wrong prior: seeds differ
+    # the exponent's restart alone: no backbone counts as folding (a short search's may, and search again)
+    monkeypatch.setattr(ident, "fold_depth", lambda thetas, c, lo, hi: np.zeros(np.atleast_2d(thetas).shape[0]))
     monkeypatch.setattr(ident, "EDGE_FRAC", -1.0)  # no result counts as at the limit: one search per seed
     first, second = (identify(T[:3000], u, w, seed=s, **kw) for s in (7, 8))
     assert first.trace.restarts == second.trace.restarts == 0
@@ -315,3 +317,57 @@ def test_a_transport_delay_in_front_of_the_hysteresis_is_found_not_widened_into_
     without = identify(T, u, w, maxiter=60)  # the default searches none
     assert without.delay_s == 0.0
     assert without.heldout_rms > 1.5 * res.heldout_rms  # the loop widened to take up the lag fits worse
+
+
+def test_the_working_range_reaches_rest_on_a_one_sided_wing_and_widens_a_two_sided_one():
+    from warpbridge.model.identify import FOLD_MARGIN, working_range
+
+    w = np.linspace(4.0, 10.0, 1001)  # its 0.5 and 99.5 percentiles: 4.03 and 9.97
+    lo, hi = working_range(w, two_sided=False)
+    assert lo == 0.0 and hi == pytest.approx(9.97 + FOLD_MARGIN * 5.94)
+    lo, hi = working_range(-w, two_sided=False)  # a wing logged with the other sign
+    assert hi == 0.0 and lo == pytest.approx(-9.97 - FOLD_MARGIN * 5.94)
+    lo, hi = working_range(w - 7.0, two_sided=True)
+    assert lo == pytest.approx(-2.97 - FOLD_MARGIN * 5.94) and hi == pytest.approx(-lo)
+
+
+def test_only_a_backbone_folding_inside_the_range_counts_as_folding():
+    from warpbridge.model.identify import fold_depth
+
+    th = np.zeros((4, 9))
+    # alpha1 (w - c)^2 + alpha2 (w - c): the vertex at c - alpha2 / (2 alpha1), c = 1
+    th[:, 6] = [0.5, 0.5, -0.25, 0.0]
+    th[:, 7] = [1.0, 3.0, 1.0, 1.0]  # vertices 0, -2, 3 and none (a straight backbone)
+    d = fold_depth(th, 1.0, -1.0, 2.0)
+    assert d[0] == pytest.approx(1.0 / 3.0) and d[1] == 0.0 and d[2] == 0.0 and d[3] == 0.0
+
+
+def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_fold():
+    """A bench log that covers only the upper part of the travel of a wing whose best fit folds below it: the
+    model kept has no fold between rest and half a span beyond the log's warp, and the fit says what happened."""
+    from warpbridge.model.identify import fold_depth, working_range
+
+    folding = BoucWenParams(a1=0.05, a2=-0.2, a3=1.0, az=P.az, A=P.A, n=P.n, b=P.b)  # vertex at 2 deg
+    u = filtered_random(T[:4000], 1.0, 1.6, offset=3.6, seed=4)
+    _, w = noisy_log(u, 3, params=folding)
+    assert np.percentile(w, 0.5) > 3.0  # the log never goes near the fold
+    res = identify(T[:4000], u, w, maxiter=60, polish_evals=600, seed=7)
+    lo, hi = working_range(w, res.two_sided)
+    assert res.trace.fold_deg is not None and lo < res.trace.fold_deg < hi  # the first search folded inside
+    assert res.trace.fold_kept
+    p = res.params
+    vertex = -p.a2 / (2.0 * p.a1)
+    assert not lo < vertex < hi
+    fit = res.fit_dict()
+    assert fit["backbone_fold_deg"] == res.trace.fold_deg and fit["working_range_deg"] == [lo, hi]
+    assert fit["fold_search_kept"] is True
+    ramp = np.linspace(float(np.min(u)) - 1.0, float(np.max(u)), 500)
+    w_ramp, _, flagged = forward(p, ramp)  # below the log's travel the model goes on down instead of holding
+    assert flagged == 0 and w_ramp[0] < np.percentile(w, 0.5) - 0.5
+    assert fold_depth(np.zeros((1, 9)), 0.0, lo, hi)[0] == 0.0
+
+
+def test_a_backbone_that_does_not_fold_is_searched_once(fitted):
+    _, _, res = fitted
+    assert res.trace.fold_deg is None and not res.trace.fold_kept
+    assert "backbone_fold_deg" not in res.fit_dict()

@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from warpbridge.bridge.commands.logfile import read_log, write_text_atomic
-from warpbridge.bridge.commands.modelio import load_model, save_model
+from warpbridge.bridge.commands.modelio import load_model, save_model, travel_note
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.diagnose import DECISION_GRID, Decision, DiagnoseOptions, diagnose
 from warpbridge.model.effects import EFFECT_NAMES
@@ -155,6 +155,9 @@ def main(args: argparse.Namespace) -> int:
             raise UserError(f"{path}: directory {Path(path).parent} does not exist")
     mf = load_model(args.model)
     data = read_log(args.log, wing=args.wing)
+    beyond = travel_note(mf, data.u)
+    if beyond:
+        data.notes.append(beyond)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
     if "aero_load" in mf.effects.active() and data.airspeed is None:

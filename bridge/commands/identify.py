@@ -172,6 +172,12 @@ def main(args: argparse.Namespace) -> int:
         print("  the first search ended at the upper limit of the exponent n: searched again from another seed, "
               + ("the second fitted the training part better and was kept" if res.trace.restart_kept
                  else "the first still fitted the training part better"))
+    if res.trace.fold_deg is not None:
+        lo, hi = res.trace.working_range_deg
+        print(f"  the first search's backbone folded at {res.trace.fold_deg:.2f} deg, inside the working range "
+              f"{lo:.2f}..{hi:.2f} deg (below the fold the model would hold its warp): searched again with the "
+              "fold kept outside it, "
+              + ("and that model was kept" if res.trace.fold_kept else "found none that fits: the first model kept"))
     if res.support is not None and not res.support.supported:
         print(f"warning: {res.support.reason}")
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))

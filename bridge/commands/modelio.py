@@ -39,3 +39,14 @@ def load_model(path: str | os.PathLike) -> ModelFile:
 def save_model(path: str | os.PathLike, model: ModelFile) -> None:
     """Write a model file atomically."""
     write_text_atomic(path, json.dumps(model.to_dict(), indent=2, allow_nan=False) + "\n")
+
+
+def travel_note(model: ModelFile, u) -> str | None:
+    """A note when more than 1 % of a log drives the tendon beyond the travel the model was identified on."""
+    out = model.travel_outside(u)
+    if out is None or out[2] + out[3] <= 0.01:
+        return None
+    lo, hi, below, above = out
+    return (f"{below + above:.0%} of the log drives the tendon beyond the travel of the log the model was "
+            f"identified on ({lo:.2f}..{hi:.2f} mm; {below:.0%} below it, {above:.0%} above): the model "
+            "extrapolates there, and its errors there are not the bench's")

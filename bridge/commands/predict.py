@@ -11,7 +11,9 @@ of the log is estimated from its first samples when it has measured warp
 (a log rarely starts at rest); otherwise MODEL.json's ``z0`` is used. Writes
 ``t,warp_pred``; if the log has measured warp, prints the RMS error over the
 whole log and after its first 5 s, and ``--plot`` draws the prediction against
-the log. Every output path is checked before the work starts.
+the log. It says when the log drives the tendon beyond the travel of the log the
+model was identified on (``fit.travel_mm``): the model extrapolates there.
+Every output path is checked before the work starts.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import numpy as np
 
 from warpbridge.bridge.commands.identify import check_outputs
 from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic
-from warpbridge.bridge.commands.modelio import load_model
+from warpbridge.bridge.commands.modelio import load_model, travel_note
 from warpbridge.model.plant import Plant
 
 SETTLE_S = 5.0  # the RMS is also reported after this much of the log
@@ -56,6 +58,9 @@ def main(args: argparse.Namespace) -> int:
     if mf.effects.active() and "aero_load" in mf.effects.active() and data.airspeed is None:
         print("note: the model has aero_load but the log has no airspeed column: assuming no airflow",
               file=sys.stderr)
+    beyond = travel_note(mf, data.u)
+    if beyond:
+        print(f"note: {beyond}", file=sys.stderr)
     has_warp = data.warp is not None and np.isfinite(data.warp).any()
     if args.plot and not has_warp:
         print("note: the log has no measured warp: --plot skipped", file=sys.stderr)
