@@ -576,7 +576,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     # not one of two that entered together)
     first_alone = sel[0] if sel and not entered_together and not from_runner_up and chosen_round.get(sel[0]) == 1 \
         else None
-    tension = tension_band(sel, first_alone, cur.effects, ex.base)
+    tension = tension_band(sel, first_alone, cur.effects, ex.base, ex.prob.params, ex.prob.travel)
     if tension is not None:  # likewise: the band followed the tension
         unnamed["friction"] = tension
         notes.append(tension["reason"])
@@ -651,8 +651,18 @@ def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict 
                       f"may be that instead: compare their latencies)"}
 
 
+def band_in_travel(eff: Effects, width: float, at: float) -> float:
+    """The hysteresis band's width in tendon travel (mm) at travel ``at`` of a model whose band, without
+    effects, is ``width`` wide: scaled by friction's band form and by a whole-loop pre-tension's 1 / gain,
+    widened by a capstan stall's play there (pulling plus releasing)."""
+    band = width * eff.friction_scale / (eff.pretension_gain if eff.pretension_loop else 1.0)
+    if eff.has_capstan:
+        band += (eff.capstan_pull_ratio + eff.capstan_release_ratio) * max(at - eff.capstan_zero_mm, 0.0)
+    return band
+
+
 def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effects,
-                 base: Effects) -> dict | None:
+                 base: Effects, params=None, travel: tuple[float, float] | None = None) -> dict | None:
     """The friction chosen after a pre-tension when its band change is what the tension change does to a
     sheath (else None).
 
@@ -663,22 +673,33 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
     scales too, but only in the share ``sigma`` of it that is the tendon's stretch (the rest is the wing's
     geometry): a band factor F goes with a compliance factor 1 + sigma (F - 1), 0 < sigma <= 1, the
     same way and less (``pretension_loop = 1`` is sigma = 1). Against the model's own effects, the band in
-    travel is friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain. When the
+    travel is friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain; a capstan
+    stall widens it by its play at the middle of the log's ``travel``, against the band of the Bouc-Wen
+    ``params`` (``band_in_travel``). When the
     pre-tension won the first round on its own (it explains the log's change alone; the friction refines
     it) and the band and the compliance moved the same way, the band by at least as much, the friction is
     read as the tension's: kept in the model (it predicts the log), reported apart from the verdict with
     its band and compliance factors and ``stretch_share``, the ratio of their logarithms (sigma for small
     changes), with a note. A friction that moved against the compliance, or less than it, or a path the
     pre-tension did not lead alone (the friction first, a runner-up's path, two that entered together),
-    keeps it named, and so does the capstan-stall form. What this rule gets wrong: a sheath whose own
+    keeps it named, and so does a stall without the model's band to judge it against. What this rule gets
+    wrong: a sheath whose own
     friction changed (wear, lubricant, routing) the same way as a re-rigging, by more than the
     re-rigging's share; measuring the tension at rest tells them apart."""
-    if not {"friction", "pretension"} <= set(selected) or eff.has_capstan or first_alone != "pretension":
+    if not {"friction", "pretension"} <= set(selected) or first_alone != "pretension":
         return None
+    width, at = 1.0, 0.0  # the band form's factors do not depend on the band's width or the travel
+    if eff.has_capstan or base.has_capstan:
+        try:
+            hi, lo = params.z_saturation(1.0)
+            width = abs(params.az * (hi - lo))
+            at = 0.5 * (travel[0] + travel[1])
+        except (AttributeError, TypeError, ValueError, ZeroDivisionError, OverflowError):
+            return None
+        if not (math.isfinite(width) and width > 0.0 and math.isfinite(at)):
+            return None
     compliance = math.log(base.pretension_gain / eff.pretension_gain)
-    band = (math.log(eff.friction_scale / base.friction_scale)
-            - (math.log(eff.pretension_gain) if eff.pretension_loop else 0.0)
-            + (math.log(base.pretension_gain) if base.pretension_loop else 0.0))
+    band = math.log(band_in_travel(eff, width, at) / band_in_travel(base, width, at))
     if not (compliance * band > 0.0 and abs(band) >= abs(compliance)):
         return None
     sigma = compliance / band

@@ -272,7 +272,8 @@ def test_a_friction_that_took_its_drag_with_it_is_named_alone_and_its_lag_kept()
     (Effects(pretension_offset_mm=0.2, pretension_gain=0.8, friction_scale=1.1), "pretension", False),  # less
     (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), "friction", False),  # friction led
     (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, friction_scale=1.15), None, False),  # no lone leader
-    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, capstan_pull_ratio=0.01), "pretension", False),  # stall
+    # a stall with no model band to judge it against (the stall form: the next test)
+    (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, capstan_pull_ratio=0.01), "pretension", False),
     # the whole-loop form already scales the band with the compliance: the friction adds the rest of it
     (Effects(pretension_offset_mm=0.2, pretension_gain=0.95, pretension_loop=1.0, friction_scale=1.1), "pretension",
      True),
@@ -288,6 +289,33 @@ def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(
                                                                            field.pretension_loop else 1.0))
         assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
     assert tension_band(("pretension",), "pretension", field, Effects()) is None
+
+
+STALL = dict(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=0.0)
+
+
+@pytest.mark.parametrize("field, folded", [
+    # the paper model's band is 1.53 mm of travel; a stall of 0.01 + 0.01 per mm above 0 adds 0.12 mm at the middle
+    # of a 2..10 mm travel: x1.08, with the compliance's x1.05
+    (Effects(pretension_gain=0.95, **STALL), True),
+    (Effects(pretension_gain=0.95, pretension_loop=1.0, **STALL), True),  # the loop's x1.05 and the stall's
+    (Effects(pretension_gain=1.05, **STALL), False),  # a stiffer rig: the band should narrow, the stall widens it
+    # a fifth of the stall: x1.016, less than the compliance's x1.05
+    (Effects(pretension_gain=0.95, capstan_pull_ratio=0.002, capstan_release_ratio=0.002), False),
+    # the same stall with the tendon slack above the middle of the travel: no play there
+    (Effects(pretension_gain=0.95, capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=7.0), False),
+])
+def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is_the_tensions(field, folded):
+    """The capstan-stall form: its play at the middle of the log's travel, against the model's own band."""
+    got = tension_band(("pretension", "friction"), "pretension", field, Effects(), P, (2.0, 10.0))
+    assert (got is not None) == folded
+    if folded:
+        width = P.az * (P.z_saturation(1.0)[0] - P.z_saturation(1.0)[1])
+        play = (field.capstan_pull_ratio + field.capstan_release_ratio) * (6.0 - field.capstan_zero_mm)
+        loop = 1.0 / field.pretension_gain if field.pretension_loop else 1.0
+        assert got["band_factor"] == pytest.approx(loop + play / width)
+        assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
+    assert tension_band(("pretension", "friction"), "friction", field, Effects(), P, (2.0, 10.0)) is None
 
 
 @pytest.mark.parametrize("bench, field, folded", [
