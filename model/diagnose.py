@@ -663,29 +663,27 @@ def band_in_travel(eff: Effects, width: float, at: float) -> float:
 
 def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effects,
                  base: Effects, params=None, travel: tuple[float, float] | None = None) -> dict | None:
-    """The friction chosen after a pre-tension when its band change is what the tension change does to a
-    sheath (else None).
+    """The friction chosen after a pre-tension when its band change is what the tension change does to a sheath
+    (else None).
 
-    In a tendon sheath the force a stretch of sheath holds grows with the tension through it (capstan
-    law), so the hysteresis band, in tendon travel, scales with the tension the rig carries at each warp:
-    a wing re-rigged stiffer (or softer) pulls harder (or less) for the same warp and widens (or narrows)
-    the band by the same factor. The same tension stretches the tendon: the backbone's travel per degree
-    scales too, but only in the share ``sigma`` of it that is the tendon's stretch (the rest is the wing's
-    geometry): a band factor F goes with a compliance factor 1 + sigma (F - 1), 0 < sigma <= 1, the
-    same way and less (``pretension_loop = 1`` is sigma = 1). Against the model's own effects, the band in
-    travel is friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain; a capstan
-    stall widens it by its play at the middle of the log's ``travel``, against the band of the Bouc-Wen
-    ``params`` (``band_in_travel``). When the
-    pre-tension won the first round on its own (it explains the log's change alone; the friction refines
-    it) and the band and the compliance moved the same way, the band by at least as much, the friction is
-    read as the tension's: kept in the model (it predicts the log), reported apart from the verdict with
-    its band and compliance factors and ``stretch_share``, the ratio of their logarithms (sigma for small
-    changes), with a note. A friction that moved against the compliance, or less than it, or a path the
-    pre-tension did not lead alone (the friction first, a runner-up's path, two that entered together),
-    keeps it named, and so does a stall without the model's band to judge it against. What this rule gets
-    wrong: a sheath whose own
-    friction changed (wear, lubricant, routing) the same way as a re-rigging, by more than the
-    re-rigging's share; measuring the tension at rest tells them apart."""
+    In a tendon sheath the force a stretch of sheath holds grows with the tension through it (capstan law), so
+    the hysteresis band, in tendon travel, scales with the tension the rig carries at each warp: a wing
+    re-rigged stiffer (or softer) pulls harder (or less) for the same warp and widens (or narrows) the band by
+    the same factor. The same tension stretches the tendon: the backbone's travel per degree scales too, but
+    only in the share ``sigma`` of it that is the tendon's stretch (the rest is the wing's geometry): a band
+    factor F goes with a compliance factor 1 + sigma (F - 1), 0 < sigma <= 1, the same way and less
+    (``pretension_loop = 1`` is sigma = 1). Against the model's own effects, the band in travel is
+    friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain; a capstan stall widens it
+    by its play at the middle of the log's ``travel``, against the band of the Bouc-Wen ``params``
+    (``band_in_travel``). When the pre-tension won the first round on its own (it explains the log's change
+    alone; the friction refines it) and the band and the compliance moved the same way, the band by at least as
+    much, the friction is read as the tension's: kept in the model (it predicts the log), reported apart from
+    the verdict with its band and compliance factors and ``stretch_share``, the ratio of their logarithms (sigma
+    for small changes), with a note. A friction that moved against the compliance, or less than it, or a path
+    the pre-tension did not lead alone (the friction first, a runner-up's path, two that entered together),
+    keeps it named, and so does a stall without the model's band to judge it against. What this rule gets wrong:
+    a sheath whose own friction changed (wear, lubricant, routing) the same way as a re-rigging, by more than
+    the re-rigging's share; measuring the tension at rest tells them apart."""
     if not {"friction", "pretension"} <= set(selected) or first_alone != "pretension":
         return None
     width, at = 1.0, 0.0  # the band form's factors do not depend on the band's width or the travel

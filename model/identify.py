@@ -665,12 +665,6 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         backbones folding inside that range (normalised warp) are penalised."""
         search = _Objective(search_path, norm.c, fold=fold)
         obj = _Objective(polish_path, norm.c, fold=fold)
-        try:
-            return _search_and_polish(de_seed, search, obj, fold)
-        finally:
-            calls[0] += search.calls + obj.calls
-
-    def _search_and_polish(de_seed: int, search: _Objective, obj: _Objective, fold) -> tuple[np.ndarray, float]:
         de = differential_evolution(
             lambda X: search.many(np.atleast_2d(X.T)), bounds, popsize=popsize, maxiter=maxiter, tol=SEARCH_SPREAD,
             atol=0.0, mutation=(0.5, 1.0), recombination=0.9, seed=de_seed, polish=False, init="latinhypercube",
@@ -698,6 +692,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
                 delay, best = 0.0, no_delay
         else:
             best, _ = _polish(obj, x_start, lo, hi, polish_evals, _nm_cb)
+        calls[0] += search.calls + obj.calls
         return best, delay
 
     def evaluate(theta: np.ndarray, delay: float):
