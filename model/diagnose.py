@@ -576,7 +576,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     # not one of two that entered together)
     first_alone = sel[0] if sel and not entered_together and not from_runner_up and chosen_round.get(sel[0]) == 1 \
         else None
-    tension = tension_band(sel, first_alone, cur.effects, ex.base, ex.prob.params, ex.prob.travel)
+    tension = tension_band(sel, first_alone, cur.effects, ex.base, ex.prob)
     if tension is not None:  # likewise: the band followed the tension
         unnamed["friction"] = tension
         notes.append(tension["reason"])
@@ -661,8 +661,20 @@ def band_in_travel(eff: Effects, width: float, at: float) -> float:
     return band
 
 
+def model_band_width(params, w: np.ndarray) -> float:
+    """The Bouc-Wen band's width in tendon travel, az (z_hi - z_lo), weighted over the log's warp signs (its
+    saturation levels depend on sgn w)."""
+    pos = float(np.mean(np.asarray(w) >= 0.0))
+    width = 0.0
+    for sign, share in ((1.0, pos), (-1.0, 1.0 - pos)):
+        if share > 0.0:
+            hi, lo = params.z_saturation(sign)
+            width += share * abs(params.az * (hi - lo))
+    return width
+
+
 def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effects,
-                 base: Effects, params=None, travel: tuple[float, float] | None = None) -> dict | None:
+                 base: Effects, prob=None) -> dict | None:
     """The friction chosen after a pre-tension when its band change is what the tension change does to a sheath
     (else None).
 
@@ -674,24 +686,24 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
     factor F goes with a compliance factor 1 + sigma (F - 1), 0 < sigma <= 1, the same way and less
     (``pretension_loop = 1`` is sigma = 1). Against the model's own effects, the band in travel is
     friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain; a capstan stall widens it
-    by its play at the middle of the log's ``travel``, against the band of the Bouc-Wen ``params``
-    (``band_in_travel``). When the pre-tension won the first round on its own (it explains the log's change
-    alone; the friction refines it) and the band and the compliance moved the same way, the band by at least as
-    much, the friction is read as the tension's: kept in the model (it predicts the log), reported apart from
-    the verdict with its band and compliance factors and ``stretch_share``, the ratio of their logarithms (sigma
-    for small changes), with a note. A friction that moved against the compliance, or less than it, or a path
-    the pre-tension did not lead alone (the friction first, a runner-up's path, two that entered together),
-    keeps it named, and so does a stall without the model's band to judge it against. What this rule gets wrong:
-    a sheath whose own friction changed (wear, lubricant, routing) the same way as a re-rigging, by more than
-    the re-rigging's share; measuring the tension at rest tells them apart."""
+    by its play at the middle of the log's travel, against the band of the Bouc-Wen model (``band_in_travel``,
+    ``model_band_width``; ``prob``: the ``Problem`` with the log and the model). When the pre-tension won the
+    first round on its own (it explains the log's change alone; the friction refines it) and the band and the
+    compliance moved the same way, the band by at least as much, the friction is read as the tension's: kept in
+    the model (it predicts the log), reported apart from the verdict with its band and compliance factors and
+    ``stretch_share``, the ratio of their logarithms (sigma for small changes), with a note. A friction that
+    moved against the compliance, or less than it, or a path the pre-tension did not lead alone (the friction
+    first, a runner-up's path, two that entered together), keeps it named, and so does a stall without the
+    model's band to judge it against. What this rule gets wrong: a sheath whose own friction changed (wear,
+    lubricant, routing) the same way as a re-rigging, by more than the re-rigging's share; measuring the tension
+    at rest tells them apart."""
     if not {"friction", "pretension"} <= set(selected) or first_alone != "pretension":
         return None
     width, at = 1.0, 0.0  # the band form's factors do not depend on the band's width or the travel
     if eff.has_capstan or base.has_capstan:
         try:
-            hi, lo = params.z_saturation(1.0)
-            width = abs(params.az * (hi - lo))
-            at = 0.5 * (travel[0] + travel[1])
+            width = model_band_width(prob.params, prob.w)
+            at = 0.5 * (prob.travel[0] + prob.travel[1])
         except (AttributeError, TypeError, ValueError, ZeroDivisionError, OverflowError):
             return None
         if not (math.isfinite(width) and width > 0.0 and math.isfinite(at)):

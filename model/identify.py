@@ -50,7 +50,9 @@ What makes this fast and robust:
   search's result folds inside the working range (``working_range``: the log's
   warp widened by ``FOLD_MARGIN`` of its span each way, and a one-sided wing's
   down to rest, zero warp), the search runs again with such backbones
-  penalised and its result is kept.
+  penalised, and its result is kept unless it fits the training part more
+  than ``FOLD_KEEP`` worse: then the data themselves show the fold (a
+  backbone that really turns just beyond the log), and the first is kept.
 
 Everything here is pure numerics; progress is reported through a callback.
 """
@@ -87,6 +89,7 @@ BOUNDS_TWO_SIDED = BOUNDS_ONE_SIDED + [(-8.0, 8.0), (-8.0, 8.0)]
 EDGE_FRAC = 0.01  # a search result this close (share of the range) to the exponent's upper limit is at it
 FOLD_MARGIN = 0.5  # the working range reaches this share of the log's warp span beyond it on each side
 FOLD_PENALTY = 1e3  # cost of a backbone folding inside the working range (a fit costs well under 1), plus its depth
+FOLD_KEEP = 1.05  # the search without a fold is kept when its training RMS is at most this times the first's
 
 
 def central_range(x: np.ndarray) -> tuple[float, float]:
@@ -292,7 +295,8 @@ class IdentResult:
             d |= {"searched_again": True, "second_search_kept": self.trace.restart_kept}
         if self.trace is not None and self.trace.fold_deg is not None:
             d |= {"backbone_fold_deg": self.trace.fold_deg, "working_range_deg": list(self.trace.working_range_deg),
-                  "fold_search_kept": self.trace.fold_kept}
+                  "fold_search_kept": self.trace.fold_kept,
+                  "fold_train_rms_deg": list(self.trace.fold_train_rms or ())}
         return d
 
 
@@ -532,18 +536,21 @@ class _Objective:
 
     def many(self, thetas: np.ndarray) -> np.ndarray:
         """Vectorised cost for DE: thetas has shape (S, N)."""
-        P = self.params_matrix(thetas)
-        out = np.empty(P.shape[0])
-        W0, Z0 = self.start(P)
-        pa = self.path
-        rows = _sse_rows if P.shape[0] >= 4 else _sse_rows_serial
-        rows(P, pa.u, pa.w, pa.weight, pa.offsets, W0, Z0, pa.budgets, self.tol, out)
-        self.calls += P.shape[0]
-        out = out / self.wsum
-        out[~np.isfinite(out)] = 1e6
-        if self.fold is not None:
-            depth = fold_depth(thetas, self.c, *self.fold)
-            out = np.where(depth > 0, FOLD_PENALTY * (1.0 + depth), out)
+        thetas = np.atleast_2d(thetas)
+        self.calls += thetas.shape[0]
+        depth = fold_depth(thetas, self.c, *self.fold) if self.fold is not None else np.zeros(thetas.shape[0])
+        out = FOLD_PENALTY * (1.0 + depth)  # a folding backbone is not simulated
+        run = depth <= 0
+        if run.any():
+            P = self.params_matrix(thetas[run])
+            sse = np.empty(P.shape[0])
+            W0, Z0 = self.start(P)
+            pa = self.path
+            rows = _sse_rows if P.shape[0] >= 4 else _sse_rows_serial
+            rows(P, pa.u, pa.w, pa.weight, pa.offsets, W0, Z0, pa.budgets, self.tol, sse)
+            sse = sse / self.wsum
+            sse[~np.isfinite(sse)] = 1e6
+            out[run] = sse
         return out
 
     def one(self, theta: np.ndarray) -> float:
@@ -590,6 +597,8 @@ class SearchTrace:
     fold_deg: float | None = None  # where the first search's backbone folded inside the working range (deg)
     working_range_deg: tuple[float, float] | None = None
     fold_kept: bool = False  # the search run again with the fold kept outside the working range was kept
+    fold_train_rms: tuple[float, float] | None = None  # training RMS of the first search and of the one without
+    fold_refit_folds: bool = False  # the search without a fold found none (its result still folds)
 
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
@@ -638,14 +647,14 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     trace = SearchTrace()
 
     first_search = [0, 0]  # generations and polish iterations the first search ran, once a second one starts
+    stage = ["search"]  # the progress stage of the search running: "search", "search again", "search without a fold"
 
     def _cb(intermediate_result=None):
         trace.generations += 1
         if intermediate_result is not None:
             trace.best.append(float(intermediate_result.fun))
         if progress:  # the generations of this search (a second one counts from 1 again)
-            progress("search" if not first_search[0] else "search again", trace.generations - first_search[0],
-                     maxiter)
+            progress(stage[0], trace.generations - first_search[0], maxiter)
         if intermediate_result is not None:
             e = np.asarray(intermediate_result.population_energies)
             trace.spread.append(float(np.std(e) / max(abs(float(np.mean(e))), 1e-300)))
@@ -711,6 +720,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         log.info("the search settled at the exponent's upper limit (n = %.3g): searching again", params.n)
         trace.restarts += 1
         first_search[:] = [trace.generations, trace.polish_iterations]
+        stage[0] = "search again"
         best2, delay2 = search_and_polish(seed + 1)
         again = evaluate(best2, delay2)
         if again[3] < train_rms:
@@ -723,13 +733,20 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: searching again with "
                  "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
         first_search[:] = [trace.generations, trace.polish_iterations]
+        stage[0] = "search without a fold"
         best2, delay2 = search_and_polish(seed, fold_hat)
+        unfolded = evaluate(best2, delay2)
+        trace.fold_train_rms = (train_rms, unfolded[3])
         if fold_depth(best2, norm.c, *fold_hat)[0] > 0:
+            trace.fold_refit_folds = True
             log.warning("no backbone without a fold inside the working range fits: the first search's model kept")
+        elif unfolded[3] > FOLD_KEEP * train_rms:
+            log.info("without the fold the training RMS rises from %.3g to %.3g deg: the data show the fold, the "
+                     "first search's model kept", train_rms, unfolded[3])
         else:
             trace.fold_kept = True
             best, delay = best2, delay2
-            params, z0, w_pred, train_rms = evaluate(best, delay)
+            params, z0, w_pred, train_rms = unfolded
     err = w_pred - w
     held_rms = float(np.sqrt(np.mean(err[held_mask] ** 2))) if held_mask.any() else float("nan")
     noise = noise_floor(w)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -292,6 +293,7 @@ def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(
 
 
 STALL = dict(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=0.0)
+LOG = SimpleNamespace(params=P, travel=(2.0, 10.0), w=np.linspace(1.0, 11.0, 101))  # a one-sided wing's log
 
 
 @pytest.mark.parametrize("field, folded", [
@@ -307,7 +309,7 @@ STALL = dict(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_m
 ])
 def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is_the_tensions(field, folded):
     """The capstan-stall form: its play at the middle of the log's travel, against the model's own band."""
-    got = tension_band(("pretension", "friction"), "pretension", field, Effects(), P, (2.0, 10.0))
+    got = tension_band(("pretension", "friction"), "pretension", field, Effects(), LOG)
     assert (got is not None) == folded
     if folded:
         width = P.az * (P.z_saturation(1.0)[0] - P.z_saturation(1.0)[1])
@@ -315,7 +317,21 @@ def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is
         loop = 1.0 / field.pretension_gain if field.pretension_loop else 1.0
         assert got["band_factor"] == pytest.approx(loop + play / width)
         assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
-    assert tension_band(("pretension", "friction"), "friction", field, Effects(), P, (2.0, 10.0)) is None
+    assert tension_band(("pretension", "friction"), "friction", field, Effects(), LOG) is None
+
+
+def test_the_models_band_is_taken_on_the_side_of_zero_the_wing_flies():
+    from warpbridge.model.diagnose import model_band_width
+
+    def side(sign):
+        hi, lo = P.z_saturation(sign)
+        return P.az * (hi - lo)
+
+    assert side(1.0) == pytest.approx(1.53, abs=0.01) and side(-1.0) < 0.5 * side(1.0)  # the paper model's sides
+    w = np.linspace(1.0, 11.0, 100)
+    assert model_band_width(P, w) == pytest.approx(side(1.0))
+    assert model_band_width(P, -w) == pytest.approx(side(-1.0))  # a wing logged with the other sign
+    assert model_band_width(P, np.concatenate([w, -w])) == pytest.approx(0.5 * (side(1.0) + side(-1.0)))
 
 
 @pytest.mark.parametrize("bench, field, folded", [

@@ -345,7 +345,7 @@ def test_only_a_backbone_folding_inside_the_range_counts_as_folding():
 def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_fold():
     """A bench log that covers only the upper part of the travel of a wing whose best fit folds below it: the
     model kept has no fold between rest and half a span beyond the log's warp, and the fit says what happened."""
-    from warpbridge.model.identify import fold_depth, working_range
+    from warpbridge.model.identify import FOLD_KEEP, working_range
 
     folding = BoucWenParams(a1=0.05, a2=-0.2, a3=1.0, az=P.az, A=P.A, n=P.n, b=P.b)  # vertex at 2 deg
     u = filtered_random(T[:4000], 1.0, 1.6, offset=3.6, seed=4)
@@ -361,10 +361,28 @@ def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_f
     fit = res.fit_dict()
     assert fit["backbone_fold_deg"] == res.trace.fold_deg and fit["working_range_deg"] == [lo, hi]
     assert fit["fold_search_kept"] is True
+    first, unfolded = fit["fold_train_rms_deg"]
+    assert unfolded <= FOLD_KEEP * first and res.train_rms == unfolded
     ramp = np.linspace(float(np.min(u)) - 1.0, float(np.max(u)), 500)
     w_ramp, _, flagged = forward(p, ramp)  # below the log's travel the model goes on down instead of holding
     assert flagged == 0 and w_ramp[0] < np.percentile(w, 0.5) - 0.5
-    assert fold_depth(np.zeros((1, 9)), 0.0, lo, hi)[0] == 0.0
+
+
+def test_a_fold_the_log_itself_shows_is_kept():
+    """A backbone that turns at 16.7 deg and a log that reaches it: without the fold the fit is twice as bad on
+    the training part, so the first search's model, fold and all, is kept and the fit says why."""
+    from warpbridge.model.identify import FOLD_KEEP
+
+    turning = BoucWenParams(a1=-0.03, a2=1.0, a3=-1.0, az=P.az, A=P.A, n=P.n, b=P.b)  # vertex at 16.7 deg
+    u = filtered_random(T[:4000], 1.0, 2.2, offset=6.5, seed=4)
+    w = forward(turning, u)[0] + 0.05 * np.random.default_rng(3).standard_normal(4000)
+    res = identify(T[:4000], u, w, maxiter=60, polish_evals=600, seed=7)
+    first, unfolded = res.trace.fold_train_rms
+    assert res.trace.fold_deg is not None and not res.trace.fold_kept and not res.trace.fold_refit_folds
+    assert unfolded > FOLD_KEEP * first and res.train_rms == first
+    p = res.params
+    assert -p.a2 / (2.0 * p.a1) == pytest.approx(res.trace.fold_deg)  # the first model, its fold with it
+    assert res.fit_dict()["fold_search_kept"] is False
 
 
 def test_a_backbone_that_does_not_fold_is_searched_once(fitted):

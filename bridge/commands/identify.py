@@ -86,6 +86,7 @@ class Progress:
         from tqdm import tqdm
 
         label = {"search": "global search (DE)", "search again": "global search again, from the next seed (DE)",
+                 "search without a fold": "global search again, the backbone kept from folding (DE)",
                  "polish": "polish (Nelder-Mead)", "delay": "transport delay scan"}.get(stage, stage)
         if not sys.stderr.isatty():  # a log file gets a line per quarter, not a redrawn bar
             q = 4 * i // max(n, 1)
@@ -174,10 +175,17 @@ def main(args: argparse.Namespace) -> int:
                  else "the first still fitted the training part better"))
     if res.trace.fold_deg is not None:
         lo, hi = res.trace.working_range_deg
+        first, unfolded = res.trace.fold_train_rms
+        if res.trace.fold_kept:
+            outcome = f"and that model was kept (training RMS {first:.4f} -> {unfolded:.4f} deg)"
+        elif res.trace.fold_refit_folds:
+            outcome = "but found none without a fold: the first model kept"
+        else:
+            outcome = (f"but it fits the training part worse ({first:.4f} -> {unfolded:.4f} deg): the data show the "
+                       "fold, the first model kept")
         print(f"  the first search's backbone folded at {res.trace.fold_deg:.2f} deg, inside the working range "
-              f"{lo:.2f}..{hi:.2f} deg (below the fold the model would hold its warp): searched again with the "
-              "fold kept outside it, "
-              + ("and that model was kept" if res.trace.fold_kept else "found none that fits: the first model kept"))
+              f"{lo:.2f}..{hi:.2f} deg (beyond the fold the model would hold its warp): searched again with the "
+              f"fold kept outside it, {outcome}")
     if res.support is not None and not res.support.supported:
         print(f"warning: {res.support.reason}")
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
