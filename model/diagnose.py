@@ -651,13 +651,14 @@ def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict 
                       f"may be that instead: compare their latencies)"}
 
 
-def band_in_travel(eff: Effects, width: float, at: float) -> float:
-    """The hysteresis band's width in tendon travel (mm) at travel ``at`` of a model whose band, without
-    effects, is ``width`` wide: scaled by friction's band form and by a whole-loop pre-tension's 1 / gain,
-    widened by a capstan stall's play there (pulling plus releasing)."""
+def band_in_travel(eff: Effects, width: float, u: np.ndarray | None = None) -> float:
+    """The hysteresis band's width in tendon travel (mm) of a model whose band, without effects, is ``width``
+    wide: scaled by friction's band form and by a whole-loop pre-tension's 1 / gain, widened by a capstan
+    stall's play (pulling plus releasing) averaged over the log's travel ``u`` (the form's own travel)."""
     band = width * eff.friction_scale / (eff.pretension_gain if eff.pretension_loop else 1.0)
     if eff.has_capstan:
-        band += (eff.capstan_pull_ratio + eff.capstan_release_ratio) * max(at - eff.capstan_zero_mm, 0.0)
+        tension = float(np.mean(np.maximum(np.asarray(u) - eff.capstan_zero_mm, 0.0)))
+        band += (eff.capstan_pull_ratio + eff.capstan_release_ratio) * tension
     return band
 
 
@@ -686,7 +687,7 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
     factor F goes with a compliance factor 1 + sigma (F - 1), 0 < sigma <= 1, the same way and less
     (``pretension_loop = 1`` is sigma = 1). Against the model's own effects, the band in travel is
     friction_scale (over the gain in the whole-loop form) and the compliance 1 / gain; a capstan stall widens it
-    by its play at the middle of the log's travel, against the band of the Bouc-Wen model (``band_in_travel``,
+    by its play averaged over the log's travel, against the band of the Bouc-Wen model (``band_in_travel``,
     ``model_band_width``; ``prob``: the ``Problem`` with the log and the model). When the pre-tension won the
     first round on its own (it explains the log's change alone; the friction refines it) and the band and the
     compliance moved the same way, the band by at least as much, the friction is read as the tension's: kept in
@@ -699,17 +700,16 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
     at rest tells them apart."""
     if not {"friction", "pretension"} <= set(selected) or first_alone != "pretension":
         return None
-    width, at = 1.0, 0.0  # the band form's factors do not depend on the band's width or the travel
+    width, u = 1.0, None  # the band form's factors do not depend on the band's width or the travel
     if eff.has_capstan or base.has_capstan:
         try:
-            width = model_band_width(prob.params, prob.w)
-            at = 0.5 * (prob.travel[0] + prob.travel[1])
+            width, u = model_band_width(prob.params, prob.w), prob.u
         except (AttributeError, TypeError, ValueError, ZeroDivisionError, OverflowError):
             return None
-        if not (math.isfinite(width) and width > 0.0 and math.isfinite(at)):
+        if not (math.isfinite(width) and width > 0.0):
             return None
     compliance = math.log(base.pretension_gain / eff.pretension_gain)
-    band = math.log(band_in_travel(eff, width, at) / band_in_travel(base, width, at))
+    band = math.log(band_in_travel(eff, width, u) / band_in_travel(base, width, u))
     if not (compliance * band > 0.0 and abs(band) >= abs(compliance)):
         return None
     sigma = compliance / band

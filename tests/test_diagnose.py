@@ -293,27 +293,30 @@ def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(
 
 
 STALL = dict(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=0.0)
-LOG = SimpleNamespace(params=P, travel=(2.0, 10.0), w=np.linspace(1.0, 11.0, 101))  # a one-sided wing's log
+LOG = SimpleNamespace(params=P, u=np.linspace(2.0, 10.0, 801), w=np.linspace(1.0, 11.0, 801))  # a one-sided wing
 
 
 @pytest.mark.parametrize("field, folded", [
-    # the paper model's band is 1.53 mm of travel; a stall of 0.01 + 0.01 per mm above 0 adds 0.12 mm at the middle
-    # of a 2..10 mm travel: x1.08, with the compliance's x1.05
+    # the paper model's band is 1.53 mm of travel; a stall of 0.01 + 0.01 per mm above 0 adds 0.12 mm on average
+    # over a 2..10 mm travel: x1.08, with the compliance's x1.05
     (Effects(pretension_gain=0.95, **STALL), True),
     (Effects(pretension_gain=0.95, pretension_loop=1.0, **STALL), True),  # the loop's x1.05 and the stall's
     (Effects(pretension_gain=1.05, **STALL), False),  # a stiffer rig: the band should narrow, the stall widens it
     # a fifth of the stall: x1.016, less than the compliance's x1.05
     (Effects(pretension_gain=0.95, capstan_pull_ratio=0.002, capstan_release_ratio=0.002), False),
-    # the same stall with the tendon slack above the middle of the travel: no play there
+    # the same stall with the tendon slack at 7 mm: its play over the top of the travel only, x1.007 on average
     (Effects(pretension_gain=0.95, capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=7.0), False),
+    # slack at the middle, a steeper stall: none at the middle, 0.1 mm on average over the travel (x1.065)
+    (Effects(pretension_gain=0.95, capstan_pull_ratio=0.05, capstan_release_ratio=0.05, capstan_zero_mm=6.0), True),
 ])
 def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is_the_tensions(field, folded):
-    """The capstan-stall form: its play at the middle of the log's travel, against the model's own band."""
+    """The capstan-stall form: its play averaged over the log's travel, against the model's own band."""
     got = tension_band(("pretension", "friction"), "pretension", field, Effects(), LOG)
     assert (got is not None) == folded
     if folded:
         width = P.az * (P.z_saturation(1.0)[0] - P.z_saturation(1.0)[1])
-        play = (field.capstan_pull_ratio + field.capstan_release_ratio) * (6.0 - field.capstan_zero_mm)
+        tension = float(np.mean(np.maximum(LOG.u - field.capstan_zero_mm, 0.0)))
+        play = (field.capstan_pull_ratio + field.capstan_release_ratio) * tension
         loop = 1.0 / field.pretension_gain if field.pretension_loop else 1.0
         assert got["band_factor"] == pytest.approx(loop + play / width)
         assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
