@@ -832,9 +832,11 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         notes.append("the residual is structured but no effect explains a significant, material share of it: "
                      "it is the model's own error (re-identify on a richer log, or diagnose a longer one)")
     eff_out = cur.effects if selected else base
+    extra = {"method": "warpbridge diagnose", "verdict": list(selected), "nominal_heldout_rms_deg": math.sqrt(mse0)}
+    if "travel_mm" in model.fit.extra:  # the nominal's parameters were identified there, whatever the effects add
+        extra["travel_mm"] = model.fit.extra["travel_mm"]
     fitq = FitQuality(train_rms_deg=math.sqrt(prob.mse(w_aug, sp.train)), heldout_rms_deg=math.sqrt(mse1),
-                      noise_deg=noise, extra={"method": "warpbridge diagnose", "verdict": list(selected),
-                                              "nominal_heldout_rms_deg": math.sqrt(mse0)})
+                      noise_deg=noise, extra=extra)
     meta = dict(model.meta)
     meta["augmented_by"] = "warpbridge diagnose"
     meta["verdict"] = list(selected)

@@ -305,9 +305,14 @@ def test_predict_and_diagnose_say_when_a_log_leaves_the_identified_travel(workdi
     assert f"{out:.0%} of the log drives the tendon beyond the travel of the log the model was identified on" in err
     assert f"({lo:.2f}..{hi:.2f} mm; 0% below it, {out:.0%} above)" in err
     assert run("diagnose", tmp_path / "wide.csv", "--model", workdir / "model.json", "--report", tmp_path / "r.json",
-               "--effects", "delay", "--quiet") == 0
+               "--effects", "delay", "--out-model", tmp_path / "aug.json", "--quiet") == 0
     notes = json.loads((tmp_path / "r.json").read_text())["log"]["notes"]
     assert any("beyond the travel of the log the model was identified on" in n for n in notes)
+    # the augmented model keeps the travel its nominal part was identified on, and predict still says it
+    assert json.loads((tmp_path / "aug.json").read_text())["fit"]["travel_mm"] == [lo, hi]
+    capsys.readouterr()
+    assert run("predict", tmp_path / "wide.csv", "--model", tmp_path / "aug.json", "-o", tmp_path / "p.csv") == 0
+    assert f"{out:.0%} of the log drives the tendon beyond the travel" in capsys.readouterr().err
     del m["fit"]["travel_mm"]  # a model identified before the travel was recorded: nothing to say
     (tmp_path / "old.json").write_text(json.dumps(m))
     capsys.readouterr()
