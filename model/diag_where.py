@@ -22,6 +22,7 @@ import numpy as np
 
 from warpbridge.model.diag_stats import band_table, change_point, effective_n, xcorr_lag
 from warpbridge.model.effects import dynamic_pressure_kpa
+from warpbridge.model.identify import central_range
 
 PHASES = ("loading", "unloading", "after reversal to loading", "after reversal to unloading")
 REVERSAL_WINDOW = 0.1  # of the input span: travel after a reversal that counts as "just after"
@@ -31,8 +32,8 @@ REVERSAL_DEADBAND = 0.005  # of the input span: smaller wiggles are not reversal
 def phase_labels(u: np.ndarray, window: float = REVERSAL_WINDOW, deadband: float = REVERSAL_DEADBAND) -> np.ndarray:
     """Phase index per sample (see ``PHASES``); direction changes need ``deadband`` of travel."""
     u = np.asarray(u, dtype=np.float64)
-    lo, hi = np.percentile(u, [0.5, 99.5])
-    span = max(float(hi - lo), 1e-12)
+    lo, hi = central_range(u)
+    span = max(hi - lo, 1e-12)
     eps, win = deadband * span, window * span
     n = u.size
     lab = np.zeros(n, dtype=np.int64)

@@ -79,7 +79,7 @@ from warpbridge.model.effects import (
     Effects,
 )
 from warpbridge.model.identify import noise_floor
-from warpbridge.model.initial_state import estimate_plant_z0
+from warpbridge.model.initial_state import estimate_plant_z0, reachable_band
 from warpbridge.model.input_check import known_error_on_check
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
@@ -669,8 +669,8 @@ def model_band_width(params, w: np.ndarray) -> float:
     width = 0.0
     for sign, share in ((1.0, pos), (-1.0, 1.0 - pos)):
         if share > 0.0:
-            hi, lo = params.z_saturation(sign)
-            width += share * abs(params.az * (hi - lo))
+            lo, hi = reachable_band(params, sign)
+            width += share * abs(params.az) * (hi - lo)
     return width
 
 

@@ -112,13 +112,19 @@ def working_range(w: np.ndarray, two_sided: bool) -> tuple[float, float]:
     return lo, hi
 
 
+def backbone_vertex(thetas: np.ndarray, c: float) -> np.ndarray:
+    """Normalised warp at which each search vector's backbone alpha1 (w - c)^2 + alpha2 (w - c) turns back
+    (inf or nan for a straight one)."""
+    th = np.atleast_2d(thetas)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return c - th[:, 7] / (2.0 * th[:, 6])
+
+
 def fold_depth(thetas: np.ndarray, c: float, lo: float, hi: float) -> np.ndarray:
     """How deep inside [lo, hi] (normalised warp) each search vector's backbone folds: the distance of its
     vertex from the nearer end, as a share of the range; 0 when it does not fold inside."""
-    th = np.atleast_2d(thetas)
-    a1, a2 = th[:, 6], th[:, 7]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v = c - a2 / (2.0 * a1)
+    v = backbone_vertex(thetas, c)
+    with np.errstate(invalid="ignore"):
         d = np.minimum(v - lo, hi - v) / (hi - lo)
     return np.where(np.isfinite(d) & (d > 0), d, 0.0)
 
@@ -295,7 +301,7 @@ class IdentResult:
             d |= {"searched_again": True, "second_search_kept": self.trace.restart_kept}
         if self.trace is not None and self.trace.fold_deg is not None:
             d |= {"backbone_fold_deg": self.trace.fold_deg, "working_range_deg": list(self.trace.working_range_deg),
-                  "fold_search_kept": self.trace.fold_kept,
+                  "fold_search_kept": self.trace.fold_outcome == "kept",
                   "fold_train_rms_deg": list(self.trace.fold_train_rms or ())}
         return d
 
@@ -596,9 +602,10 @@ class SearchTrace:
     restart_kept: bool = False  # the search run again fitted the training part better and was kept
     fold_deg: float | None = None  # where the first search's backbone folded inside the working range (deg)
     working_range_deg: tuple[float, float] | None = None
-    fold_kept: bool = False  # the search run again with the fold kept outside the working range was kept
+    # the search run again with the fold kept outside: "kept", "fits worse" (the data show the fold) or
+    # "still folds" (it found no backbone without one); "" when the first did not fold
+    fold_outcome: str = ""
     fold_train_rms: tuple[float, float] | None = None  # training RMS of the first search and of the one without
-    fold_refit_folds: bool = False  # the search without a fold found none (its result still folds)
 
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
@@ -728,7 +735,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             best, delay = best2, delay2
             params, z0, w_pred, train_rms = again
     if fold_depth(best, norm.c, *fold_hat)[0] > 0:
-        trace.fold_deg = float(norm.ws * (norm.c - best[7] / (2.0 * best[6])))
+        trace.fold_deg = float(norm.ws * backbone_vertex(best, norm.c)[0])
         trace.working_range_deg = (w_lo, w_hi)
         log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: searching again with "
                  "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
@@ -738,13 +745,14 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         unfolded = evaluate(best2, delay2)
         trace.fold_train_rms = (train_rms, unfolded[3])
         if fold_depth(best2, norm.c, *fold_hat)[0] > 0:
-            trace.fold_refit_folds = True
+            trace.fold_outcome = "still folds"
             log.warning("no backbone without a fold inside the working range fits: the first search's model kept")
         elif unfolded[3] > FOLD_KEEP * train_rms:
+            trace.fold_outcome = "fits worse"
             log.info("without the fold the training RMS rises from %.3g to %.3g deg: the data show the fold, the "
                      "first search's model kept", train_rms, unfolded[3])
         else:
-            trace.fold_kept = True
+            trace.fold_outcome = "kept"
             best, delay = best2, delay2
             params, z0, w_pred, train_rms = unfolded
     err = w_pred - w

@@ -354,7 +354,7 @@ def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_f
     res = identify(T[:4000], u, w, maxiter=60, polish_evals=600, seed=7)
     lo, hi = working_range(w, res.two_sided)
     assert res.trace.fold_deg is not None and lo < res.trace.fold_deg < hi  # the first search folded inside
-    assert res.trace.fold_kept
+    assert res.trace.fold_outcome == "kept"
     p = res.params
     vertex = -p.a2 / (2.0 * p.a1)
     assert not lo < vertex < hi
@@ -378,7 +378,7 @@ def test_a_fold_the_log_itself_shows_is_kept():
     w = forward(turning, u)[0] + 0.05 * np.random.default_rng(3).standard_normal(4000)
     res = identify(T[:4000], u, w, maxiter=60, polish_evals=600, seed=7)
     first, unfolded = res.trace.fold_train_rms
-    assert res.trace.fold_deg is not None and not res.trace.fold_kept and not res.trace.fold_refit_folds
+    assert res.trace.fold_deg is not None and res.trace.fold_outcome == "fits worse"
     assert unfolded > FOLD_KEEP * first and res.train_rms == first
     p = res.params
     assert -p.a2 / (2.0 * p.a1) == pytest.approx(res.trace.fold_deg)  # the first model, its fold with it
@@ -387,5 +387,5 @@ def test_a_fold_the_log_itself_shows_is_kept():
 
 def test_a_backbone_that_does_not_fold_is_searched_once(fitted):
     _, _, res = fitted
-    assert res.trace.fold_deg is None and not res.trace.fold_kept
+    assert res.trace.fold_deg is None and res.trace.fold_outcome == ""
     assert "backbone_fold_deg" not in res.fit_dict()

@@ -176,9 +176,9 @@ def main(args: argparse.Namespace) -> int:
     if res.trace.fold_deg is not None:
         lo, hi = res.trace.working_range_deg
         first, unfolded = res.trace.fold_train_rms
-        if res.trace.fold_kept:
+        if res.trace.fold_outcome == "kept":
             outcome = f"and that model was kept (training RMS {first:.4f} -> {unfolded:.4f} deg)"
-        elif res.trace.fold_refit_folds:
+        elif res.trace.fold_outcome == "still folds":
             outcome = "but found none without a fold: the first model kept"
         else:
             outcome = (f"but it fits the training part worse ({first:.4f} -> {unfolded:.4f} deg): the data show the "
