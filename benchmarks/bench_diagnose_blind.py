@@ -17,7 +17,7 @@ dynamics, linkage slack, sensor filter, ADC quantisation).
 Per plant: a 40 s bench log (random input, no airflow, the tendon already
 loaded at the first sample) and ``warpbridge identify`` on it, which also
 learns the model-error model. Per case (no effect, each single effect, random
-pairs) at a random magnitude (RMS change of the warp 2.5-15x the sensor noise,
+pairs) at a random magnitude (RMS change of the warp 2.5-15x the sensor noise; ``--magnitude`` other sizes,
 log-uniform), a 60 s field log (random input, varying airspeed) that
 ``warpbridge diagnose --sensitivity`` sees, and a 30 s check log it never sees
 (another excitation and airspeed range), written twice: with the effects and
@@ -247,8 +247,13 @@ class FieldCase:
     mags: dict
 
 
-def field_case(plant: Family, case_seed: int, names: tuple[str, ...], duration: float, rate: float) -> FieldCase:
-    """The case's noise, input, airspeed and effect sizes (RMS change of the warp 2.5-15x the noise)."""
+MAGNITUDE = (2.5, 15.0)  # the effects' RMS change of the warp, in multiples of the sensor noise (log-uniform)
+
+
+def field_case(plant: Family, case_seed: int, names: tuple[str, ...], duration: float, rate: float,
+               magnitude: tuple[float, float] = MAGNITUDE) -> FieldCase:
+    """The case's noise, input, airspeed and effect sizes (RMS change of the warp ``magnitude`` x the noise,
+    2.5-15 unless told)."""
     rng = np.random.default_rng(case_seed)
     noise = float(rng.uniform(0.03, 0.05))
     t = timebase(duration, rate)
@@ -257,7 +262,7 @@ def field_case(plant: Family, case_seed: int, names: tuple[str, ...], duration: 
     f_seed = int(rng.integers(1 << 30))
     spec, mags = {}, {}
     for n in names:
-        m = float(math.exp(rng.uniform(math.log(2.5), math.log(15.0))))
+        m = float(math.exp(rng.uniform(math.log(magnitude[0]), math.log(magnitude[1]))))
         shape = (float(rng.uniform(-1, 1)), float(rng.uniform(-1, 1)))
         spec[n] = (magnitude_for(plant, n, m * noise, shape, t, u, v, f_seed), shape)
         mags[n] = m
@@ -277,7 +282,7 @@ def check_input(plant: Family, fc: FieldCase, duration: float, rate: float):
 
 def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...], case_seed: int, model: Path,
              args, work: Path, timed: bool) -> dict:
-    fc = field_case(plant, case_seed, names, args.duration, args.rate)
+    fc = field_case(plant, case_seed, names, args.duration, args.rate, getattr(args, "magnitude", MAGNITUDE))
     noise, t, u, v, f_seed, spec, mags = fc.noise, fc.t, fc.u, fc.airspeed, fc.f_seed, fc.spec, fc.mags
     fld = run_log(plant, t, u, v, spec, noise, f_seed)
     clean0 = run_log(plant, t, u, v, {}, 0.0, f_seed).w_clean
@@ -403,7 +408,8 @@ def _tick(bar, label: str, i: int, n: int, res) -> None:
 def case_list(seeds: list[int], families: list[str], args: argparse.Namespace) -> list[tuple]:
     """Every case of those seeds and families: (family, seed, plant index, case index, effect names, specs)."""
     return [(fam, seed, i, k, list(names), cs) for seed in seeds for fam in families for i in range(args.plants)
-            for k, (names, cs) in enumerate(draw_cases(seed, fam, i, args.nones, args.pairs))]
+            for k, (names, cs) in enumerate(draw_cases(seed, fam, i, args.nones, args.pairs))
+            if not args.singles_only or len(names) == 1]
 
 
 def cached_results(cases: list[tuple], res_dir: Path) -> tuple[list[dict], list[tuple]]:
@@ -419,15 +425,19 @@ def cached_results(cases: list[tuple], res_dir: Path) -> tuple[list[dict], list[
 
 
 def choice_pool(args: argparse.Namespace, families: list[str], res_dir: Path) -> tuple[list[dict] | None, str]:
-    """The cached results of ``--choose-on-seed`` (every case of those seeds, or exit saying which to run), and
-    the phrase the fold table's heading gets; (None, "") without the option."""
+    """The cached results of ``--choose-on-seed`` (every case of those seeds, at the benchmark's own sizes and
+    with every kind of case, or exit saying which to run), and the phrase the fold table's heading gets;
+    (None, "") without the option."""
     seeds = [int(s) for s in args.choose_on_seed.split(",") if s.strip()]
     if not seeds:
         return None, ""
-    pool, missing = cached_results(case_list(seeds, families, args), res_dir)
+    whole = argparse.Namespace(**{**vars(args), "singles_only": False})
+    pool, missing = cached_results(case_list(seeds, families, whole), res_dir.with_name(
+        res_dir.name.replace(f"-m{args.magnitude[0]:g}-{args.magnitude[1]:g}", "")))
     if missing:
         sys.exit(f"--choose-on-seed {args.choose_on_seed}: {len(missing)} of {len(missing) + len(pool)} cases are "
-                 f"not in the cache; run `--seed {args.choose_on_seed}` with the same options first")
+                 f"not in the cache; run `--seed {args.choose_on_seed}` (without --magnitude and --singles-only) "
+                 f"with the same options first")
     return pool, f" of seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}"
 
 
@@ -466,6 +476,11 @@ def main() -> None:
     ap.add_argument("--timing-every", type=int, default=4,
                     help="time a plain diagnose (no --sensitivity) on every n-th case (default 4)")
     ap.add_argument("--cache", type=Path, default=default_cache(), help="cache folder (outside the repository)")
+    ap.add_argument("--magnitude", default="2.5,15",
+                    help="range of the effects' sizes, RMS change of the warp in multiples of the noise (default "
+                         "2.5,15; another range is cached apart)")
+    ap.add_argument("--singles-only", action="store_true",
+                    help="only the single-effect cases (the same draws as with the no-effect cases and pairs)")
     ap.add_argument("--report-only", action="store_true", help="print the tables from the cached results")
     ap.add_argument("--bench-check", action="store_true",
                     help="score each bench model on a second bench log of another input (identify --check), so "
@@ -481,10 +496,18 @@ def main() -> None:
     if bad:
         sys.exit(f"unknown family {', '.join(bad)} (known: {', '.join(FAMILIES)})")
     seeds = [int(s) for s in args.seed.split(",") if s.strip()]
+    try:
+        lo, hi = (float(x) for x in args.magnitude.split(","))
+    except ValueError:
+        sys.exit(f"--magnitude takes two numbers, low,high (got {args.magnitude!r})")
+    if not 0 < lo <= hi:
+        sys.exit(f"--magnitude needs 0 < low <= high (got {lo:g},{hi:g})")
+    args.magnitude = (lo, hi)
     args.cache.mkdir(parents=True, exist_ok=True)
     diag_hash = source_hash(DIAG_SOURCES)
-    res_dir = args.cache / "results" / (f"d{args.duration:g}-r{args.rate:g}-b{args.bench_duration:g}-{diag_hash}"
-                                         + ("-check" if args.bench_check else ""))
+    sizes = "" if args.magnitude == MAGNITUDE else f"-m{lo:g}-{hi:g}"
+    res_dir = args.cache / "results" / (f"d{args.duration:g}-r{args.rate:g}-b{args.bench_duration:g}{sizes}-"
+                                         f"{diag_hash}" + ("-check" if args.bench_check else ""))
     res_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
 
