@@ -54,6 +54,8 @@ from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 from warpbridge.model.diag_kernels import fill_along_travel, forward_run_capped, travel_grid
 from warpbridge.model.effects import (
     EFFECT_FIELDS,
+    PULLED,
+    RELEASED,
     Effects,
     apply_input_effects,
     core_params,
@@ -63,8 +65,14 @@ from warpbridge.model.effects import (
     form_parameters,
     sensor_filtered,
 )
-from warpbridge.model.identify import central_range, reversal_indices, warmup_end
-from warpbridge.model.initial_state import algebraic_z0, reachable_band
+from warpbridge.model.identify import central_range, noise_floor, reversal_indices, warmup_end
+from warpbridge.model.initial_state import (
+    OPENING_MAX,
+    algebraic_z0,
+    reachable_band,
+    released_start_wins,
+    squared_error,
+)
 from warpbridge.model.model_error import ErrorModel
 
 log = logging.getLogger(__name__)
@@ -341,7 +349,7 @@ class Problem:
 
     def __init__(self, t, u, w, airspeed, params: BoucWenParams, effects: Effects, z0: float = 0.0,
                  split: Split | None = None, error_model: ErrorModel | None = None,
-                 travel_step: float = TRAVEL_STEP) -> None:
+                 travel_step: float = TRAVEL_STEP, slack_side: float = PULLED) -> None:
         self.t = np.ascontiguousarray(t, dtype=np.float64)
         self.u = np.ascontiguousarray(u, dtype=np.float64)
         self.w = np.ascontiguousarray(w, dtype=np.float64)
@@ -359,7 +367,9 @@ class Problem:
         self._count_lock = threading.Lock()
         self._evaluations = 0
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
-        x = apply_input_effects(effects, self.t, self.u)
+        self._opening = min(self.t.size, OPENING_MAX)
+        self._noise = noise_floor(self.w)
+        x = apply_input_effects(effects, self.t, self.u, slack_side)  # the nominal's, as z0 was estimated
         p = self._core_params(effects)
         self._z0_alg = algebraic_z0(p, x, self.w) * p.az  # in mm of tendon: comparable across friction scales
         # the candidates run on the compressed path, and so does the nominal they are compared with. A candidate
@@ -425,8 +435,8 @@ class Problem:
         if hit is not None:
             self._core.move_to_end(key)
             return hit
-        x = apply_input_effects(eff, self.t, self.u)
         p = self._core_params(eff)
+        x = self.input_path(eff, p)
         self._counted()
         w = np.empty_like(x)
         if (self._check_reach and not _reachable(p, x)) or (run := self._grid_run(p, x, capped=True))[0] < 0:
@@ -438,6 +448,20 @@ class Problem:
         if len(self._core) > 8:
             self._core.popitem(last=False)
         return w
+
+    def input_path(self, eff: Effects, p: BoucWenParams) -> np.ndarray:
+        """The tendon travel into the core for ``eff``; a play starts on its releasing edge when that core run,
+        from its own ``z0_for``, explains the log's opening stretch materially better than the pull's
+        (``initial_state.released_start_wins``), as ``initial_state.estimate_plant_start`` chooses for a whole
+        model."""
+        x = apply_input_effects(eff, self.t, self.u)
+        if not eff.has_slack:
+            return x
+        x_rel = apply_input_effects(eff, self.t, self.u, RELEASED)
+        m = self._opening
+        cost = [squared_error(forward(p, np.ascontiguousarray(xs[:m]), z0=self.z0_for(p, xs))[0], self.w[:m])
+                for xs in (x, x_rel)]
+        return x_rel if released_start_wins(cost[0], cost[1], m, self._noise) else x
 
     def _grid_run(self, p: BoucWenParams, x: np.ndarray, capped: bool) -> tuple[int, np.ndarray, np.ndarray]:
         """(samples of the compressed path beyond the model's monotone range, or -1 once past the candidates'

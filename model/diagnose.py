@@ -2,7 +2,9 @@
 
 0. **Start.** The hysteretic state at the log's first sample is estimated
    from its opening stretch (``model.initial_state``, with the model's effects
-   and error correction), not assumed at rest. When MODEL.json carries a
+   and error correction), not assumed at rest; so is, for every candidate with
+   a play (backlash, capstan stall), the edge its slack starts on (a log may
+   open just after a release: ``diag_fit.Problem.input_path``). When MODEL.json carries a
    model-error model (``model.model_error``: what the nominal model got wrong
    on the bench, as a function of warp level, direction, travel since the
    last reversal and rate), its correction is part of the nominal prediction,
@@ -77,9 +79,10 @@ from warpbridge.model.effects import (
     EFFECT_FIELDS,
     EFFECT_NAMES,
     Effects,
+    slack_side_name,
 )
 from warpbridge.model.identify import noise_floor
-from warpbridge.model.initial_state import estimate_plant_z0, reachable_band
+from warpbridge.model.initial_state import estimate_plant_start, reachable_band
 from warpbridge.model.input_check import known_error_on_check
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
@@ -264,9 +267,10 @@ def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
     return replace(eff, **{f: getattr(base, f) for f in EFFECT_FIELDS[name][0]})
 
 
-def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) -> float:
-    """z0 that explains the log's first samples with the model, its effects and its error correction."""
-    return estimate_plant_z0(Plant(model.params, model.effects, em), t, u, w, airspeed)
+def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) -> tuple[float, float]:
+    """(z0, the play's slack side) that explain the log's first samples with the model, its effects and its
+    error correction (``initial_state.estimate_plant_start``)."""
+    return estimate_plant_start(Plant(model.params, model.effects, em), t, u, w, airspeed)
 
 
 class Explorer:
@@ -765,8 +769,8 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     if progress:
         progress("initial state", 0, 1)
     em = model.model_error if opt.use_model_error else None
-    z0 = initial_state(t, u, w, airspeed, model, em)
-    prob = Problem(t, u, w, airspeed, model.params, model.effects, z0, error_model=em)
+    z0, side = initial_state(t, u, w, airspeed, model, em)
+    prob = Problem(t, u, w, airspeed, model.params, model.effects, z0, error_model=em, slack_side=side)
     sp = prob.split
     if sp.score.sum() < 20 or sp.train.sum() < 20:
         raise ValueError("log too short after the warm-up to split into training and scoring blocks")
@@ -851,7 +855,8 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "model_error_from_check": _check_note(model, noise, opt.use_model_error),
         "decision": opt.decision.to_dict(),
         "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
-                                              "clamped to the reachable band, refined on the prediction error)"},
+                                              "clamped to the reachable band, refined on the prediction error)"}
+        | ({"slack_taken_up_by": slack_side_name(side)} if model.effects.has_slack else {}),
         "model_error_model": _em_summary(model.model_error, em is not None),
         "residual_is_noise": residual_is_noise,
         "tests": {"whiteness": white.to_dict(), "input_independence": indep.to_dict()},

@@ -405,10 +405,22 @@ def slack_play(u, r0, pull, release, zero, y0):
     return out
 
 
-def slack_start(eff: Effects, x0: float) -> float:
-    """The play's output at the first sample: the slack taken up by a pull (the tendon loaded)."""
-    r0, pull, _, zero = eff.slack_args
-    return x0 - r0 - pull * max(x0 - zero, 0.0)
+# where the play (backlash, capstan stall) stands at a log's first sample: its slack taken up by the last pull
+# (the tendon loaded, the default) or by the last release; a log that starts mid-flight may be either
+PULLED, RELEASED = -1.0, 1.0
+
+
+def slack_side_name(side: float) -> str:
+    """``PULLED`` / ``RELEASED`` in words: what took the play's slack up last."""
+    return "pull" if side < 0 else "release"
+
+
+def slack_start(eff: Effects, x0: float, side: float = PULLED) -> float:
+    """The play's output at the first sample: on its pulling edge (``PULLED``, the tendon loaded) or on its
+    releasing edge (``RELEASED``)."""
+    r0, pull, release, zero = eff.slack_args
+    s = max(x0 - zero, 0.0)
+    return x0 - r0 - pull * s if side < 0 else x0 + r0 + release * s
 
 
 # ---- output-side operators (on warp, deg) ----------------------------------------------------
@@ -437,15 +449,16 @@ def sensor_filtered(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
     return y
 
 
-def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash and capstan stall)."""
+def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: float = PULLED) -> np.ndarray:
+    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash and capstan stall), the
+    play starting on the edge ``slack_side`` names (``slack_start``)."""
     x = np.ascontiguousarray(u, dtype=np.float64)
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
     if math.isfinite(eff.rate_mm_s):
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.has_slack:
-        x = slack_play(x, *eff.slack_args, slack_start(eff, float(x[0])))
+        x = slack_play(x, *eff.slack_args, slack_start(eff, float(x[0]), slack_side))
     return x
 
 

@@ -9,7 +9,11 @@ so the first samples give z0 directly, up to sensor noise. That value is
 clamped to the band z can reach (the saturation limits of a long monotone
 run) and then refined by a bounded one-dimensional search on the prediction
 error over the log's opening stretch, as identification tools estimate initial
-conditions. Units: u mm, w deg, z in the model's units (mm when az = 1).
+conditions. A model with a play (backlash, capstan stall) has a second
+unknown, the edge the play's slack was last taken up on (by a pull, the
+tendon loaded, or by a release): ``estimate_plant_start`` tries both and keeps
+the release only on material evidence from the opening stretch. Units: u mm,
+w deg, z in the model's units (mm when az = 1).
 """
 
 from __future__ import annotations
@@ -169,5 +173,50 @@ def estimate_plant_z0(plant, t, u, w, airspeed=None, *, opening: int | None = No
     def simulate(z0: float, m: int) -> np.ndarray:
         return plant.simulate(t[:m], u[:m], None if a is None else a[:m], z0=z0)[1]
 
-    x = apply_input_effects(plant.effects, t, u)
+    x = apply_input_effects(plant.effects, t, u, getattr(plant, "slack_side", -1.0))
     return estimate_z0(plant.core_params(), x, w, simulate=simulate, opening=opening)
+
+
+def estimate_plant_start(plant, t, u, w, airspeed=None, *, opening: int | None = None) -> tuple[float, float]:
+    """(z0, slack side): the whole initial state of a ``model.plant.Plant`` from the log's opening stretch.
+
+    A model with a play (backlash, capstan stall) has a second unknown at the first sample: whether the last
+    motion before the log took its slack up by a pull or by a release (``effects.PULLED`` / ``RELEASED``).
+    Until the input first crosses the play the two predict warps a whole play apart, so each side gets its z0
+    (``estimate_plant_z0``) and the release is kept when it explains the opening stretch materially better
+    (``released_start_wins``)."""
+    from dataclasses import replace
+
+    from warpbridge.model.effects import PULLED, RELEASED
+    from warpbridge.model.identify import noise_floor
+
+    z_pull = estimate_plant_z0(replace(plant, slack_side=PULLED), t, u, w, airspeed, opening=opening)
+    if not plant.effects.has_slack:
+        return z_pull, PULLED
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    n = min(u.size, opening or OPENING_MAX)
+    ok = np.isfinite(w[:n])
+    a = None if airspeed is None else np.asarray(airspeed, dtype=np.float64)[:n]
+    z_rel = estimate_plant_z0(replace(plant, slack_side=RELEASED), t, u, w, airspeed, opening=opening)
+    cost = [squared_error(replace(plant, slack_side=side).simulate(t[:n], u[:n], a, z0=z)[1][ok], w[:n][ok])
+            for side, z in ((PULLED, z_pull), (RELEASED, z_rel))]
+    if released_start_wins(cost[0], cost[1], int(ok.sum()), noise_floor(w[np.isfinite(w)])):
+        return z_rel, RELEASED
+    return z_pull, PULLED
+
+
+def squared_error(pred: np.ndarray, w: np.ndarray) -> float:
+    """Sum of squared prediction errors (inf when not finite)."""
+    e = np.asarray(pred, dtype=np.float64) - w
+    c = float(np.dot(e, e))
+    return c if np.isfinite(c) else np.inf
+
+
+def released_start_wins(cost_pulled: float, cost_released: float, n: int, noise: float) -> bool:
+    """A play starts on its releasing edge only when that lowers the opening's squared error (``n`` samples)
+    by at least the noise variance per sample: material evidence, as a decision asks of an effect. Less, or
+    a tie, keeps the pull (the tendon loaded, the usual start)."""
+    margin = n * noise ** 2 if np.isfinite(noise) else 0.0
+    return cost_released < cost_pulled - margin

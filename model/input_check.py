@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from warpbridge.model.identify import noise_floor
-from warpbridge.model.initial_state import estimate_plant_z0
+from warpbridge.model.initial_state import estimate_plant_start
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.plant import Plant
 
@@ -46,8 +46,8 @@ def input_check(params, effects, error_model: ErrorModel | None, t, u, w, airspe
     for tag, em in (("bare", None), ("corrected", error_model)):
         if tag == "corrected" and em is None:
             continue
-        plant = Plant(params, effects, em)
-        z0 = estimate_plant_z0(plant, t, u, w, airspeed)
+        z0, side = estimate_plant_start(Plant(params, effects, em), t, u, w, airspeed)
+        plant = Plant(params, effects, em, side)
         _, w_pred = plant.simulate(t, u, airspeed, z0=z0)
         rms = float(np.sqrt(np.mean((w[ok] - w_pred[ok]) ** 2)))
         out[f"rms_{tag}_deg"] = rms

@@ -16,6 +16,7 @@ import numpy as np
 from warpbridge.model import kernels as K
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 from warpbridge.model.effects import (
+    PULLED,
     Effects,
     apply_input_effects,
     apply_output_effects,
@@ -35,6 +36,7 @@ class Plant:
     params: BoucWenParams
     effects: Effects = field(default_factory=Effects)
     error_model: ErrorModel | None = None  # the bench-learned correction added to the core's warp, if any
+    slack_side: float = PULLED  # where the play stands at the first sample (``effects.slack_start``)
 
     def core_params(self) -> BoucWenParams:
         """Bouc-Wen parameters with pre-tension and friction folded in (``model.effects.core_params``)."""
@@ -48,7 +50,7 @@ class Plant:
             raise ValueError("t and u must have the same length")
         if t.size == 0:
             return np.empty(0), np.empty(0)
-        x = apply_input_effects(self.effects, t, u)
+        x = apply_input_effects(self.effects, t, u, self.slack_side)
         w, _, _ = forward(self.core_params(), x, z0=z0)
         if self.error_model is not None:
             w = self.error_model.corrected(t, x, w, self.effects.band_scale)
@@ -71,7 +73,7 @@ class PlantStepper:
         self._u0 = float(u0)
         self._rate_y = float(u0)
         self._slack = e.slack_args  # fixed for the plant's life: not rebuilt every sample
-        self._play_y = slack_start(e, float(u0))
+        self._play_y = slack_start(e, float(u0), plant.slack_side)
         x0 = self._play_y if e.has_slack else float(u0)
         self.w = rest_warp(plant.core_params(), x0, z0)
         self.z = float(z0)

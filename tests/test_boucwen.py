@@ -171,17 +171,18 @@ def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
     assert abs(big - z) < 2e-5, (big, z)
 
 
-@pytest.mark.parametrize("effects", ["none", "slack", "capstan", "sensor"])
+@pytest.mark.parametrize("effects", ["none", "slack", "capstan", "sensor", "released"])
 def test_plant_stepper_gives_identical_results_to_plant_simulate(effects):
-    from warpbridge.model.effects import Effects
+    from warpbridge.model.effects import PULLED, RELEASED, Effects
     from warpbridge.model.plant import Plant, PlantStepper
 
     e = {"none": Effects(),
          "slack": Effects(backlash_mm=0.2, pretension_offset_mm=0.3, pretension_gain=0.9),
          "capstan": Effects(backlash_mm=0.1, capstan_pull_ratio=0.04, capstan_release_ratio=0.02,
                             capstan_zero_mm=1.0),
-         "sensor": Effects(sensor_tau_s=0.03, sensor_stage_ratio=0.6, drift_deg_s=0.01)}[effects]
-    plant = Plant(P, e)
+         "sensor": Effects(sensor_tau_s=0.03, sensor_stage_ratio=0.6, drift_deg_s=0.01),
+         "released": Effects(backlash_mm=0.4, capstan_pull_ratio=0.04, capstan_release_ratio=0.02)}[effects]
+    plant = Plant(P, e, slack_side=RELEASED if effects == "released" else PULLED)
     t = np.arange(0, 6, 1 / 500)
     u = filtered_random(t, 1.0, 2.5, offset=4.5, seed=4)
     w_true, w_meas = plant.simulate(t, u)

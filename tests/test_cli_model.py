@@ -318,3 +318,29 @@ def test_predict_and_diagnose_say_when_a_log_leaves_the_identified_travel(workdi
     capsys.readouterr()
     assert run("predict", tmp_path / "wide.csv", "--model", tmp_path / "old.json", "-o", tmp_path / "p.csv") == 0
     assert "beyond the travel" not in capsys.readouterr().err
+
+
+def test_a_log_opening_with_the_play_released_is_predicted_from_its_first_sample(tmp_path, capsys):
+    """A model with a wide backlash, the log cut where the tendon had just been released: predict starts the
+    play on its releasing edge (and says so), and the whole-log RMS is within 1.1x of the RMS after 5 s."""
+    from warpbridge.bridge.commands.modelio import save_model
+    from warpbridge.model.boucwen import BoucWenParams
+    from warpbridge.model.effects import Effects
+    from warpbridge.model.excitation import filtered_random
+    from warpbridge.model.modelfile import ModelFile
+    from warpbridge.model.plant import Plant
+
+    p, eff = BoucWenParams.paper(), Effects(backlash_mm=0.8)
+    save_model(tmp_path / "m.json", ModelFile(params=p, effects=eff))
+    t = np.arange(0, 34, 0.005)
+    u = 4.5 + 2.0 * np.sin(2 * np.pi * 0.08 * t) + filtered_random(t, 1.5, 0.6, 0.0, seed=4)
+    w = Plant(p, eff).simulate(t, u)[1] + np.random.default_rng(5).normal(0, 0.03, t.size)
+    k = int(np.argmin(u[:2400]))
+    np.savetxt(tmp_path / "log.csv", np.column_stack([t[k:] - t[k], u[k:], w[k:]]), delimiter=",",
+               header="t,u,warp", comments="", fmt="%.9g")
+    assert run("predict", tmp_path / "log.csv", "--model", tmp_path / "m.json", "-o", tmp_path / "p.csv") == 0
+    assert "the play's slack taken up by a release" in capsys.readouterr().out
+    e = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 1] - w[k:]
+    tt = t[k:] - t[k]
+    whole, late = float(np.sqrt(np.mean(e ** 2))), float(np.sqrt(np.mean(e[tt >= 5.0] ** 2)))
+    assert whole < 1.1 * late

@@ -554,6 +554,24 @@ def test_a_log_that_starts_loaded_gives_no_false_alarm():
     assert d.report["initial_state"]["z0"] == pytest.approx(z[k], abs=0.1 * float(np.ptp(z)))
 
 
+@pytest.mark.parametrize("seed", [31, 32])
+def test_a_wide_play_on_a_log_that_opens_released_is_named_backlash(seed):
+    """A field backlash of a sixth of the travel, the log cut where the tendon had just been released (the
+    play on its releasing edge) and rising slowly from there: each candidate with a play starts on the edge
+    that explains the log's opening, so the backlash is named, sized and closes the gap (started on its
+    pulling edge, the play misses the whole opening rise and friction takes its place)."""
+    t = np.arange(int(34 * FS)) / FS
+    u = 4.5 + 2.0 * np.sin(2 * np.pi * 0.08 * t) + filtered_random(t, 1.5, 0.6, 0.0, seed=seed)
+    v = filtered_random(t, 0.1, 6.0, 14.0, seed=seed + 100)
+    _, w = Plant(P, Effects(backlash_mm=0.8)).simulate(t, u, v)
+    w = w + NOISE * np.random.default_rng(seed + 1).standard_normal(t.size)
+    k = int(np.argmin(u[: int(12 * FS)]))
+    d = diagnose(t[k:] - t[k], u[k:], w[k:], v[k:], nominal_model())
+    assert d.verdict == ["backlash"]
+    assert d.model.effects.backlash_mm == pytest.approx(0.8, rel=0.05)
+    assert d.report["shrinkage"]["gap_closed"] > 0.95
+
+
 def test_a_parameter_at_its_bound_is_reported_and_lowers_the_confidence():
     # a sensor lag far beyond its search box (up to 0.5 s)
     t, u, w, v = make_log(Effects(sensor_tau_s=0.9), seed=24)

@@ -83,3 +83,59 @@ def test_a_model_with_effects_is_started_from_the_whole_chain():
     estimated = plant.simulate(tc, uc, z0=estimate_plant_z0(plant, tc, uc, wc))[1]
     assert rms(at_rest) > 1.5 * rms(at_rest, after)
     assert rms(estimated) < 1.1 * rms(estimated, after)
+
+
+@pytest.fixture(scope="module")
+def slack_log():
+    """A plant with a wide play (backlash 1.2 mm) run from rest, then cut where the input was lowest (its
+    slack last taken up by a release) and where it was highest (by a pull)."""
+    from warpbridge.model.effects import Effects
+    from warpbridge.model.plant import Plant
+
+    p = BoucWenParams.paper().canonical()
+    plant = Plant(p, Effects(backlash_mm=1.2))
+    t = np.arange(0, 30, 0.002)
+    u = 5 + 2 * np.sin(2 * np.pi * 0.3 * t) + 0.8 * np.sin(2 * np.pi * 1.1 * t + 1)
+    _, w = plant.simulate(t, u)
+    w = w + np.random.default_rng(2).normal(0, 0.05, w.size)
+    return plant, t, u, w
+
+
+@pytest.mark.parametrize("at", ["lowest", "highest"])
+def test_the_play_starts_on_the_edge_the_log_opens_with(slack_log, at):
+    """The initial state of a model with a play is z0 and the edge its slack was taken up on: a log cut where
+    the input turned up starts released, one cut where it turned down starts pulled; either way its whole-log
+    RMS is within 1.1x of its RMS after the first 5 s, and a start assumed on the other edge is visibly wrong."""
+    from dataclasses import replace
+
+    from warpbridge.model.effects import PULLED, RELEASED
+    from warpbridge.model.initial_state import estimate_plant_start, estimate_plant_z0
+
+    plant, t, u, w = slack_log
+    first = u[2500:5000]
+    cut = 2500 + int(np.argmin(first) if at == "lowest" else np.argmax(first))
+    tc, uc, wc = t[cut:], u[cut:], w[cut:]
+    after = tc >= tc[0] + 5.0
+
+    def rms(pl, z0, sel=slice(None)):
+        return float(np.sqrt(np.mean((pl.simulate(tc, uc, z0=z0)[1][sel] - wc[sel]) ** 2)))
+
+    z0, side = estimate_plant_start(plant, tc, uc, wc)
+    assert side == (RELEASED if at == "lowest" else PULLED)
+    right = replace(plant, slack_side=side)
+    assert rms(right, z0) < 1.1 * rms(right, z0, after)
+    wrong = replace(plant, slack_side=-side)
+    z_wrong = estimate_plant_z0(wrong, tc, uc, wc)
+    assert rms(wrong, z_wrong) > 1.5 * rms(wrong, z_wrong, after)
+
+
+def test_a_model_without_a_play_has_one_unknown():
+    from warpbridge.model.effects import PULLED, Effects
+    from warpbridge.model.initial_state import estimate_plant_start, estimate_plant_z0
+    from warpbridge.model.plant import Plant
+
+    plant = Plant(BoucWenParams.paper().canonical(), Effects(sensor_tau_s=0.02))
+    t = np.arange(0, 6, 0.002)
+    u = 5 + 2 * np.sin(2 * np.pi * 0.4 * t)
+    _, w = plant.simulate(t, u, z0=0.2)
+    assert estimate_plant_start(plant, t, u, w) == (estimate_plant_z0(plant, t, u, w), PULLED)

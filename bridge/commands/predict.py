@@ -8,7 +8,9 @@ it): it carries a bench's servo, link and sensor dynamics over to any log, but
 on measured data it can be worse than the bare model on another amplitude, so
 it is not the default. The hysteretic state at the start
 of the log is estimated from its first samples when it has measured warp
-(a log rarely starts at rest); otherwise MODEL.json's ``z0`` is used. Writes
+(a log rarely starts at rest), and for a model with a play (backlash,
+capstan stall) the edge its slack was last taken up on, by a pull or a
+release; otherwise MODEL.json's ``z0`` is used (and a pull). Writes
 ``t,warp_pred``; if the log has measured warp, prints the RMS error over the
 whole log and after its first 5 s, and ``--plot`` draws the prediction against
 the log. It says when the log drives the tendon beyond the travel of the log the
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +51,8 @@ def _rms(e: np.ndarray) -> float:
 
 
 def main(args: argparse.Namespace) -> int:
-    from warpbridge.model.initial_state import estimate_plant_z0
+    from warpbridge.model.effects import slack_side_name
+    from warpbridge.model.initial_state import estimate_plant_start
 
     check_outputs({"-o": args.output, "--plot": args.plot}, plots=("--plot",))
     mf = load_model(args.model)
@@ -74,8 +78,10 @@ def main(args: argparse.Namespace) -> int:
         em_note = "bare model" + (" (--correction adds its model-error correction)" if mf.model_error else "")
     plant = Plant(mf.params, mf.effects, em)
     if has_warp:
-        z0 = estimate_plant_z0(plant, data.t, data.u, data.warp, data.airspeed)
-        z0_note = f"initial state z0 = {z0:.4g} estimated from the log's first samples"
+        z0, side = estimate_plant_start(plant, data.t, data.u, data.warp, data.airspeed)
+        plant = replace(plant, slack_side=side)
+        play = f", the play's slack taken up by a {slack_side_name(side)}," if mf.effects.has_slack else ""
+        z0_note = f"initial state z0 = {z0:.4g}{play} estimated from the log's first samples"
     else:
         z0 = mf.z0
         z0_note = f"initial state z0 = {z0:.4g} from the model file (no measured warp to estimate it from)"
