@@ -129,6 +129,9 @@ def main() -> int:
             for n, p in rep["effects"].items():
                 vals = ", ".join(f"{k} {v:.4g}" for k, v in p.items() if v is not None)
                 print(f"{'':<10}   {n}: {vals}")
+            for n, k in (rep.get("kept_unnamed") or {}).items():  # in the augmented model, read as another's part
+                vals = ", ".join(f"{f} {v:.4g}" for f, v in k["fitted"].items() if v is not None)
+                print(f"{'':<10}   kept in the model, not named: {n}: {vals}")
             for a in rep["ambiguities"]:
                 print(f"{'':<10}   ambiguous: {' / '.join(a['equally_good'])}")
             for h in rep.get("bound_hits", []):
