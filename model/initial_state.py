@@ -173,7 +173,7 @@ def estimate_plant_z0(plant, t, u, w, airspeed=None, *, opening: int | None = No
     def simulate(z0: float, m: int) -> np.ndarray:
         return plant.simulate(t[:m], u[:m], None if a is None else a[:m], z0=z0)[1]
 
-    x = apply_input_effects(plant.effects, t, u, getattr(plant, "slack_side", -1.0))
+    x = apply_input_effects(plant.effects, t, u, plant.slack_side)
     return estimate_z0(plant.core_params(), x, w, simulate=simulate, opening=opening)
 
 
