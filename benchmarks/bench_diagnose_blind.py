@@ -282,7 +282,7 @@ def check_input(plant: Family, fc: FieldCase, duration: float, rate: float):
 
 def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...], case_seed: int, model: Path,
              args, work: Path, timed: bool) -> dict:
-    fc = field_case(plant, case_seed, names, args.duration, args.rate, getattr(args, "magnitude", MAGNITUDE))
+    fc = field_case(plant, case_seed, names, args.duration, args.rate, args.magnitude)
     noise, t, u, v, f_seed, spec, mags = fc.noise, fc.t, fc.u, fc.airspeed, fc.f_seed, fc.spec, fc.mags
     fld = run_log(plant, t, u, v, spec, noise, f_seed)
     clean0 = run_log(plant, t, u, v, {}, 0.0, f_seed).w_clean
@@ -405,6 +405,14 @@ def _tick(bar, label: str, i: int, n: int, res) -> None:
         print(f"[{i}/{n}] {label}: {res}", flush=True)
 
 
+def results_dir(cache: Path, duration: float = FIELD_S, rate: float = RATE, bench_duration: float = BENCH_S,
+                magnitude: tuple[float, float] = MAGNITUDE, bench_check: bool = False) -> Path:
+    """Where the results of these settings and of this code (the hash of ``DIAG_SOURCES``) are cached."""
+    sizes = "" if tuple(magnitude) == MAGNITUDE else f"-m{magnitude[0]:g}-{magnitude[1]:g}"
+    return cache / "results" / (f"d{duration:g}-r{rate:g}-b{bench_duration:g}{sizes}-{source_hash(DIAG_SOURCES)}"
+                                + ("-check" if bench_check else ""))
+
+
 def case_list(seeds: list[int], families: list[str], args: argparse.Namespace) -> list[tuple]:
     """Every case of those seeds and families: (family, seed, plant index, case index, effect names, specs)."""
     return [(fam, seed, i, k, list(names), cs) for seed in seeds for fam in families for i in range(args.plants)
@@ -424,7 +432,7 @@ def cached_results(cases: list[tuple], res_dir: Path) -> tuple[list[dict], list[
     return results, todo
 
 
-def choice_pool(args: argparse.Namespace, families: list[str], res_dir: Path) -> tuple[list[dict] | None, str]:
+def choice_pool(args: argparse.Namespace, families: list[str]) -> tuple[list[dict] | None, str]:
     """The cached results of ``--choose-on-seed`` (every case of those seeds, at the benchmark's own sizes and
     with every kind of case, or exit saying which to run), and the phrase the fold table's heading gets;
     (None, "") without the option."""
@@ -432,8 +440,9 @@ def choice_pool(args: argparse.Namespace, families: list[str], res_dir: Path) ->
     if not seeds:
         return None, ""
     whole = argparse.Namespace(**{**vars(args), "singles_only": False})
-    pool, missing = cached_results(case_list(seeds, families, whole), res_dir.with_name(
-        res_dir.name.replace(f"-m{args.magnitude[0]:g}-{args.magnitude[1]:g}", "")))
+    pool, missing = cached_results(case_list(seeds, families, whole),
+                                   results_dir(args.cache, args.duration, args.rate, args.bench_duration,
+                                               bench_check=args.bench_check))
     if missing:
         sys.exit(f"--choose-on-seed {args.choose_on_seed}: {len(missing)} of {len(missing) + len(pool)} cases are "
                  f"not in the cache; run `--seed {args.choose_on_seed}` (without --magnitude and --singles-only) "
@@ -504,17 +513,14 @@ def main() -> None:
         sys.exit(f"--magnitude needs 0 < low <= high (got {lo:g},{hi:g})")
     args.magnitude = (lo, hi)
     args.cache.mkdir(parents=True, exist_ok=True)
-    diag_hash = source_hash(DIAG_SOURCES)
-    sizes = "" if args.magnitude == MAGNITUDE else f"-m{lo:g}-{hi:g}"
-    res_dir = args.cache / "results" / (f"d{args.duration:g}-r{args.rate:g}-b{args.bench_duration:g}{sizes}-"
-                                         f"{diag_hash}" + ("-check" if args.bench_check else ""))
+    res_dir = results_dir(args.cache, args.duration, args.rate, args.bench_duration, args.magnitude, args.bench_check)
     res_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
 
     cases = case_list(seeds, families, args)
     plants = sorted({(c[0], c[1], c[2]) for c in cases})
     results, todo = cached_results(cases, res_dir)
-    pool, chosen_on = choice_pool(args, families, res_dir)  # before the run: a missing seed is said at once
+    pool, chosen_on = choice_pool(args, families)  # before the run: a missing seed is said at once
     if todo and not args.report_only:
         print(f"{len(cases)} cases ({len(results)} cached), {len(plants)} plants; cache {args.cache}", flush=True)
         need = sorted({(c[0], c[1], c[2]) for c in todo})
@@ -575,6 +581,9 @@ def main() -> None:
     print(blind_lofo.misses(results, folds))
     print(f"\nsingle effects closing less than {blind_lofo.TARGETS['min_closed']:.0%} of their check-log gap:")
     print(blind_lofo.short_closures(results, folds))
+    print(f"\nsingle effects whose check-log gap is not scored (the effect adds under {blind_lofo.MIN_GAP:.0%} to the "
+          f"nominal's check-log MSE, or lowers it):")
+    print(blind_lofo.unscored_gaps(results))
     print("\nmisattributed with the shipped default decision:")
     print(blind_lofo.misses(results, default=default))
     if args.bench_check:

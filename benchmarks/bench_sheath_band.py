@@ -63,8 +63,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=blind.default_cache(), help="the blind benchmark's cache")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seed.split(",")]
-    res_dir = args.cache / "results" / (f"d{blind.FIELD_S:g}-r{blind.RATE:g}-b{blind.BENCH_S:g}-"
-                                        f"{blind.source_hash(blind.DIAG_SOURCES)}")
+    res_dir = blind.results_dir(args.cache)
     results = [r for f in sorted(res_dir.glob("*.json")) if (r := blind.json.loads(f.read_text()))["seed"] in seeds]
     if not results:
         sys.exit(f"no blind-benchmark results for these sources in {res_dir}: run bench_diagnose_blind.py first")

@@ -274,9 +274,7 @@ def short_closures(results: list[dict], folds: dict) -> str:
                             f"{r['check_rms_bare_without_effects']:.2f}, closed {b:.0%}")
                 chk += ")"
                 lines.append(f"  {r['plant']:<28} {r['truth'][0]:<12} closed {c:>5.0%}  {what:<14}{chk}")
-    return ("\n".join(lines) if lines else "  none") + (
-        f"\n\nsingle effects whose check-log gap is not scored (the effect adds under {MIN_GAP:.0%} to the nominal's "
-        f"check-log MSE, or lowers it):\n" + unscored_gaps(results))
+    return "\n".join(lines) if lines else "  none"
 
 
 def unscored_gaps(results: list[dict]) -> str:

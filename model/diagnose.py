@@ -706,10 +706,9 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
         return None
     width, u = 1.0, None  # the band form's factors do not depend on the band's width or the travel
     if eff.has_capstan or base.has_capstan:
-        try:
-            width, u = model_band_width(prob.params, prob.w), prob.u
-        except (AttributeError, TypeError, ValueError, ZeroDivisionError, OverflowError):
+        if prob is None:
             return None
+        width, u = model_band_width(prob.params, prob.w), prob.u
         if not (math.isfinite(width) and width > 0.0):
             return None
     compliance = math.log(base.pretension_gain / eff.pretension_gain)

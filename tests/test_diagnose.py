@@ -321,6 +321,8 @@ def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is
         assert got["band_factor"] == pytest.approx(loop + play / width)
         assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
     assert tension_band(("pretension", "friction"), "friction", field, Effects(), LOG) is None
+    # without the log and the model, a stall has no band to be judged against: it stays named
+    assert tension_band(("pretension", "friction"), "pretension", field, Effects()) is None
 
 
 def test_the_models_band_is_taken_on_the_side_of_zero_the_wing_flies():

@@ -131,11 +131,15 @@ def test_the_play_starts_on_the_edge_the_log_opens_with(slack_log, at):
 
 def test_a_model_without_a_play_has_one_unknown():
     from warpbridge.model.effects import PULLED, Effects
-    from warpbridge.model.initial_state import estimate_plant_start, estimate_plant_z0
+    from warpbridge.model.initial_state import estimate_plant_start, estimate_plant_z0, reachable_band
     from warpbridge.model.plant import Plant
 
     plant = Plant(BoucWenParams.paper().canonical(), Effects(sensor_tau_s=0.02))
     t = np.arange(0, 6, 0.002)
     u = 5 + 2 * np.sin(2 * np.pi * 0.4 * t)
     _, w = plant.simulate(t, u, z0=0.2)
-    assert estimate_plant_start(plant, t, u, w) == (estimate_plant_z0(plant, t, u, w), PULLED)
+    w = w + np.random.default_rng(3).normal(0, 0.03, w.size)
+    z0, side = estimate_plant_start(plant, t, u, w)
+    assert side == PULLED and z0 == estimate_plant_z0(plant, t, u, w)
+    lo, hi = reachable_band(plant.params, float(w[0]))
+    assert abs(z0 - 0.2) < 0.05 * (hi - lo)  # the state the log started in
