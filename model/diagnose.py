@@ -509,6 +509,10 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         if d.parsimony:  # the simplest of the equal explanations
             equal = [j for j in acc if j is best or ex.ties(ex.gain(j.fit, best.fit), d)]
             best = min(equal, key=lambda j: (j.fit.params_of[j.name], -j.penalised))
+        swap = unstrained_equal(ex, d, best, acc)
+        if swap is not None:
+            notes.append(strain_note(best, swap, rnd + 1))
+            best = swap
         play = stall_as_play(ex, d, best, acc)
         if play is not None:
             play_note = play["reason"]
@@ -589,6 +593,35 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
     return Path(sel, cur, chosen_round, chosen_from, start_mse, dropped, notes, together, from_runner_up, to_load,
                 kept_by_airspeed, unnamed)
+
+
+def strained(j: Judged) -> bool:
+    """True when the candidate's own fitted parameter sits at an edge of its search that has the generic
+    reading (a drift settling faster than a quarter of the log, a friction past its range ...): the effect
+    larger than the model allows, or standing in for another. Edges ``BOUND_HINTS`` reads otherwise (two
+    equal sensor lags, a tendon going slack within the travel) are states a true effect can be in."""
+    return any(h["effect"] == j.name and (h["parameter"], h["bound"]) not in BOUND_HINTS
+               for h in j.fit.bound_hits())
+
+
+def unstrained_equal(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) -> Judged | None:
+    """The candidate to name instead of a strained round winner (else None): the best-scoring of those the
+    held-out test cannot tell from it (``Explorer.ties``) whose own fit is not strained. Of two equal
+    explanations, one that needs its parameter pushed to the edge of what the effect can do is the weaker."""
+    if not strained(best):
+        return None
+    equal = [j for j in acc if j is not best and not strained(j)
+             and ex.ties(ex.gain(*sorted((j.fit, best.fit), key=lambda f: -f.score_mse)), d)]
+    return max(equal, key=lambda j: j.penalised) if equal else None
+
+
+def strain_note(strained_one: Judged, named: Judged, rnd: int) -> str:
+    """What the report says when ``unstrained_equal`` named another candidate than the round's winner."""
+    edges = ", ".join(f"{h['parameter']} at the {h['bound']} edge of its search" for h in
+                      strained_one.fit.bound_hits() if h["effect"] == strained_one.name)
+    return (f"round {rnd}: {strained_one.name} explained the log no better than {named.name} on the held-out "
+            f"blocks, with {edges} (larger than the effect can be, or standing in for another): {named.name} "
+            f"is named, the two reported as equally good")
 
 
 def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) -> dict | None:

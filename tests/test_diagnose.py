@@ -737,6 +737,42 @@ def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_pl
     assert stall_as_play(ex, Decision(), best, [best, play]) is None
 
 
+def _judged(name, mse, hits=(), penalised=0.0):
+    from types import SimpleNamespace
+    hits = [{"effect": e, "parameter": f, "bound": b} for e, f, b in hits]
+    return SimpleNamespace(name=name, penalised=penalised,
+                           fit=SimpleNamespace(score_mse=mse, bound_hits=lambda: hits))
+
+
+@pytest.mark.parametrize("best_hits, rival_hits, ties, is_strained, named", [
+    ([("drift", "drift_tau_s", "lower")], [], True, True, "pretension"),  # strained, an equal one that is not
+    ([("drift", "drift_tau_s", "lower")], [], False, True, "drift"),  # the test tells them apart: it stays
+    ([("drift", "drift_tau_s", "lower")], [("pretension", "pretension_gain", "upper")], True, True, "drift"),
+    ([("drift", "sensor_stage_ratio", "upper")], [], True, False, "drift"),  # an edge BOUND_HINTS reads otherwise
+    ([("friction", "drift_tau_s", "lower")], [], True, False, "drift"),  # a held effect's edge
+])
+def test_a_strained_round_winner_gives_way_to_an_equal_explanation_that_is_not(best_hits, rival_hits, ties,
+                                                                                is_strained, named):
+    from types import SimpleNamespace
+
+    from warpbridge.model.diagnose import Decision, strain_note, strained, unstrained_equal
+
+    best = _judged("drift", 0.010, best_hits, penalised=2.0)
+    rival = _judged("pretension", 0.011, rival_hits, penalised=1.0)
+    seen = []
+    ex = SimpleNamespace(gain=lambda old, new: seen.append((old, new)) or "g", ties=lambda g, d: ties)
+    r = unstrained_equal(ex, Decision(), best, [best, rival])
+    assert (r or best).name == named
+    assert strained(best) is is_strained
+    if seen:  # the gain is taken from the worse fit to the better one
+        assert seen[0] == (rival.fit, best.fit)
+    if r is not None:
+        assert strain_note(best, r, 1) == ("round 1: drift explained the log no better than pretension on the "
+                                           "held-out blocks, with drift_tau_s at the lower edge of its search "
+                                           "(larger than the effect can be, or standing in for another): "
+                                           "pretension is named, the two reported as equally good")
+
+
 def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
     """A sensor lag of 10 ms is a delay to the held-out test at these rates: with parsimony the one-parameter
     delay is named and the lag reported as equally good; a 40 ms lag, which the test tells from a delay, is
