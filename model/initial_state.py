@@ -19,10 +19,12 @@ w deg, z in the model's units (mm when az = 1).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
 from warpbridge.model.boucwen import BoucWenParams, forward
+from warpbridge.model.effects import PULLED, RELEASED, apply_input_effects
 
 GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
 OPENING_MAX = 2000  # samples over which z0 is refined (the state's influence fades after a few reversals)
@@ -160,8 +162,6 @@ def estimate_z0(params: BoucWenParams, u, w, *,
 def estimate_plant_z0(plant, t, u, w, airspeed=None, *, opening: int | None = None) -> float:
     """``estimate_z0`` for a ``model.plant.Plant`` with effects or an error correction: the algebraic value
     from the core model on the input the sheath sees, refined by simulating the whole chain."""
-    from warpbridge.model.effects import apply_input_effects
-
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     if u.size == 0:
@@ -185,10 +185,7 @@ def estimate_plant_start(plant, t, u, w, airspeed=None, *, opening: int | None =
     Until the input first crosses the play the two predict warps a whole play apart, so each side gets its z0
     (``estimate_plant_z0``) and the release is kept when it explains the opening stretch materially better
     (``released_start_wins``)."""
-    from dataclasses import replace
-
-    from warpbridge.model.effects import PULLED, RELEASED
-    from warpbridge.model.identify import noise_floor
+    from warpbridge.model.identify import noise_floor  # identify imports this module
 
     z_pull = estimate_plant_z0(replace(plant, slack_side=PULLED), t, u, w, airspeed, opening=opening)
     if not plant.effects.has_slack:
