@@ -348,7 +348,8 @@ def run_case(plant: Family, seed: int, index: int, k: int, names: tuple[str, ...
             "by_decision": by_decision, "seconds_sensitivity": seconds_sens, "seconds": seconds,
             "check_rms_nominal": math.sqrt(mse_nom), "check_rms_nominal_without_effects": math.sqrt(mse_nom0),
             "check_rms_bare": math.sqrt(bare_nom), "check_rms_bare_without_effects": math.sqrt(bare_nom0),
-            "bound_hits": rep.get("bound_hits", []), "kept_beside_aero_load": rep.get("band_gain_by_airspeed", [])}
+            "bound_hits": rep.get("bound_hits", []), "kept_beside_aero_load": rep.get("band_gain_by_airspeed", []),
+            "sources": source_hash(DIAG_SOURCES)}
 
 
 def case_job(family: str, seed: int, index: int, k: int, names, case_seed: int, args) -> dict:
@@ -430,6 +431,21 @@ def cached_results(cases: list[tuple], res_dir: Path) -> tuple[list[dict], list[
         else:
             todo.append(c)
     return results, todo
+
+
+def provenance(results: list[dict]) -> str:
+    """Which code the results were computed on: those of this code's sources (the hash the cache folder is
+    named by) against results another code computed (carried over by hand) or that predate the record."""
+    here = source_hash(DIAG_SOURCES)
+    own = sum(r.get("sources") == here for r in results)
+    other = sorted({r["sources"] for r in results if r.get("sources") not in (None, here)})
+    unrecorded = sum("sources" not in r for r in results)
+    text = f"computed on this code's sources ({here}): {own} of {len(results)}"
+    if other:
+        text += f"; on other sources ({', '.join(other)}): {sum(r.get('sources') in other for r in results)}"
+    if unrecorded:
+        text += f"; not recorded (computed before the benchmark recorded it): {unrecorded}"
+    return text
 
 
 def choice_pool(args: argparse.Namespace, families: list[str]) -> tuple[list[dict] | None, str]:
@@ -539,6 +555,7 @@ def main() -> None:
     print()
     print(f"blind diagnosis benchmark: {len(results)} cases, families {', '.join(sorted(folds))}, "
           f"seeds {', '.join(map(str, seeds))}; field logs {args.duration:g} s at {args.rate:g} Hz")
+    print(provenance(results))
     print(f"\nleave-one-family-out: the decision for each family is chosen on the others{chosen_on}")
     print(blind_lofo.fold_table(folds, seeds))
     print()
