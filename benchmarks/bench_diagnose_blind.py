@@ -59,6 +59,7 @@ import shutil
 import sys
 import tempfile
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -435,14 +436,13 @@ def cached_results(cases: list[tuple], res_dir: Path) -> tuple[list[dict], list[
 
 def provenance(results: list[dict]) -> str:
     """Which code the results were computed on: those of this code's sources (the hash the cache folder is
-    named by) against results another code computed (carried over by hand) or that predate the record."""
+    named by) against results other sources computed (carried over by hand) or that predate the record."""
     here = source_hash(DIAG_SOURCES)
-    own = sum(r.get("sources") == here for r in results)
-    other = sorted({r["sources"] for r in results if r.get("sources") not in (None, here)})
-    unrecorded = sum("sources" not in r for r in results)
-    text = f"computed on this code's sources ({here}): {own} of {len(results)}"
-    if other:
-        text += f"; on other sources ({', '.join(other)}): {sum(r.get('sources') in other for r in results)}"
+    by = Counter(r.get("sources") for r in results)
+    text = f"computed on this code's sources ({here}): {by.pop(here, 0)} of {len(results)}"
+    unrecorded = by.pop(None, 0)
+    if by:
+        text += "; on other sources: " + ", ".join(f"{h} {n}" for h, n in sorted(by.items()))
     if unrecorded:
         text += f"; not recorded (computed before the benchmark recorded it): {unrecorded}"
     return text
