@@ -5,7 +5,9 @@ Each case result holds the truth, the verdict under every decision of the grid
 family, the decision is the one that scores best on the other families (all
 seeds); the held-out family is then scored with it. The pooled figures add up
 the held-out scores of every fold, so no case is scored with a decision made
-on its own family.
+on its own family. "Best" follows the targets, which hold for each family: the
+least total shortfall of the training families below them (``merit``), then the
+mean of the pooled rates.
 """
 
 from __future__ import annotations
@@ -78,19 +80,36 @@ def rates(results: Iterable[dict], dk: str) -> dict:
 
 
 def score(rt: dict) -> float:
-    """What a decision is chosen by: the mean of the three rates (singles, pairs, no false alarm)."""
+    """The mean of the three rates (singles, pairs, no false alarm): ``merit``'s tie-break."""
     parts = [rt["single_rate"], rt["pair_rate"], 1.0 - rt["fa_rate"]]
     parts = [p for p in parts if math.isfinite(p)]
     return float(np.mean(parts)) if parts else -math.inf
 
 
+def shortfall(rt: dict) -> float:
+    """How far the naming rates fall short of their targets (singles, pairs, false alarms), summed."""
+    parts = [TARGETS["single"] - rt["single_rate"], TARGETS["pairs"] - rt["pair_rate"],
+             rt["fa_rate"] - TARGETS["false_alarm"]]
+    return float(sum(max(p, 0.0) for p in parts if math.isfinite(p)))
+
+
+def merit(results: list[dict], dk: str) -> tuple[float, float]:
+    """What a decision is chosen by (larger is better): first the shortfall below the targets summed over
+    the families of ``results``, each scored alone (the targets hold for each family, so a decision that
+    keeps every training family above them is preferred to one that buys a higher pooled rate with one
+    family below), then the mean of the pooled rates (``score``)."""
+    fams = sorted({r["family"] for r in results})
+    miss = sum(shortfall(rates([r for r in results if r["family"] == f], dk)) for f in fams)
+    return -miss, score(rates(results, dk))
+
+
 def choose(results: list[dict], decisions: list[str], default: str) -> str:
-    """The decision that scores best on ``results``; ties go to the default, then to the first listed."""
-    best, best_s = default, score(rates(results, default))
+    """The decision of the largest ``merit`` on ``results``; ties go to the default, then to the first listed."""
+    best, best_m = default, merit(results, default)
     for dk in decisions:
-        s = score(rates(results, dk))
-        if s > best_s + 1e-12:
-            best, best_s = dk, s
+        m = merit(results, dk)
+        if m[0] > best_m[0] + 1e-12 or (m[0] >= best_m[0] - 1e-12 and m[1] > best_m[1] + 1e-12):
+            best, best_m = dk, m
     return best
 
 
@@ -422,7 +441,7 @@ def close_calls(results: list[dict], folds: dict, pool: list[dict] | None = None
     for fam, (dk, rs) in folds.items():
         train = [r for r in pool if r["family"] != fam]
         chosen = counts(rs, dk)
-        ranked = sorted((d for d in decisions if d != dk), key=lambda d: -score(rates(train, d)))
+        ranked = sorted((d for d in decisions if d != dk), key=lambda d: merit(train, d), reverse=True)
         alt = next((d for d in ranked if counts(rs, d) != chosen), None)
         for label, d in (("chosen", dk), ("next other", alt)):
             if d is None:
