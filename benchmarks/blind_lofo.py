@@ -100,15 +100,14 @@ def merit(results: list[dict], dk: str) -> tuple[float, float]:
     family below), then the mean of the pooled rates (``score``)."""
     fams = sorted({r["family"] for r in results})
     miss = sum(shortfall(rates([r for r in results if r["family"] == f], dk)) for f in fams)
-    return -miss, score(rates(results, dk))
+    return -round(miss, 12), round(score(rates(results, dk)), 12)  # rounded: sums of rates compare exactly
 
 
 def choose(results: list[dict], decisions: list[str], default: str) -> str:
     """The decision of the largest ``merit`` on ``results``; ties go to the default, then to the first listed."""
     best, best_m = default, merit(results, default)
     for dk in decisions:
-        m = merit(results, dk)
-        if m[0] > best_m[0] + 1e-12 or (m[0] >= best_m[0] - 1e-12 and m[1] > best_m[1] + 1e-12):
+        if (m := merit(results, dk)) > best_m:
             best, best_m = dk, m
     return best
 
