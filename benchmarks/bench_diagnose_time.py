@@ -1,8 +1,8 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
-    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms] [--threads 2]
-                                             [--seed 2] [--plant 0] [--cases 10,12] [--families ...] [--repeats 1]
-                                             [--cache DIR]
+    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap]
+                                             [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
+                                             [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
 by side) against ``--threads`` threads (``--jobs N``; the command's default is the cores free at its start).
@@ -15,12 +15,16 @@ still scales), both on one thread; the verdicts are compared, the reports differ
 each lag's step factors, the rate's smoothing width) and its play states in one compiled pass (as shipped) against
 the code before (a lag recomputing exp(-dt / tau) at every sample, a median of the steps at every evaluation, one
 play after another), both on one thread; the reports must be identical.
+``--compare opening-cap``: a play's start side judged on the log's opening with the forward map that gives up once
+more of the opening than a candidate may leaves the model's monotone range (as shipped: that start costs inf)
+against the uncapped map (the code before: every such sample searched for the range's edge), both on one thread;
+the reports must be identical. The slow cases are on other plants than the default's: name them with ``--case``.
 
-Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at
-``--seed``, the case numbers given; 10-12 are its pairs, usually the slowest; all six families unless
-``--families``), the bench models from its cache (identified there when missing). Each case runs plain
-``diagnose`` through ``bridge.cli.main`` once per variant and repeat, the variants alternating in order, one
-process at a time. The report must be the same either way (checked: the verdict, every fitted parameter and
+Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at ``--seed``,
+the case numbers given, or each ``--case`` family/seed/plant/case; 10-12 are its pairs, usually the slowest; all
+six families unless ``--families``), the bench models from its cache (identified there when missing). Each case
+runs plain ``diagnose`` through ``bridge.cli.main`` once per variant and repeat, the variants alternating in order,
+one process at a time. The report must be the same either way (checked: the verdict, every fitted parameter and
 every candidate's figures; only the count of core runs may differ between thread counts, each thread caching
 its own); the table gives each case's times and their ratio, then the median ratio and the slowest time per
 variant.
@@ -45,7 +49,10 @@ import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
 from warpbridge.model import model_error  # noqa: E402
+from warpbridge.model.boucwen import forward  # noqa: E402
+from warpbridge.model.diag_fit import Problem  # noqa: E402
 from warpbridge.model.effects import lagged, play  # noqa: E402
+from warpbridge.model.initial_state import squared_error  # noqa: E402
 
 FAMILIES = ("bouc-wen", "bouc-wen-phys", "dahl", "prandtl-ishlinskii", "sheath", "lugre-sheath")
 
@@ -93,6 +100,14 @@ def _old_play_states(x, thresholds):
     return out
 
 
+def _uncapped_opening(self, p, x: np.ndarray) -> float:
+    """The baseline of ``--compare opening-cap``: the opening's squared error from the uncapped forward map."""
+    m = self._opening
+    return squared_error(forward(p, np.ascontiguousarray(x[:m]), z0=self.z0_for(p, x))[0], self.w[:m])
+
+
+_SHIPPED_OPENING = Problem._opening_cost
+
 _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smooth_rate,
                         "play_states": _old_play_states}
 
@@ -114,6 +129,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     if compare == "time-terms" and not new:
         for name, fn in _TIME_TERMS_BASELINE.items():
             setattr(model_error, name, fn)
+    if compare == "opening-cap" and not new:
+        Problem._opening_cost = _uncapped_opening
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -121,6 +138,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         seconds = time.perf_counter() - t0
     finally:
         model_error.ErrorModel._input_terms = cached
+        Problem._opening_cost = _SHIPPED_OPENING
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
     if code != 0:
@@ -130,16 +148,21 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms"), default="threads",
+    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap"),
+                    default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
                          "against kept on the bench's travel scale; time-terms: the rate and lag terms from weights "
-                         "kept per log and the plays in one pass against recomputed at every evaluation")
+                         "kept per log and the plays in one pass against recomputed at every evaluation; "
+                         "opening-cap: a play's start side judged with the capped forward map against the uncapped "
+                         "one")
     ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")
     ap.add_argument("--plant", type=int, default=0, help="which plant of each family (the blind benchmark draws 3)")
+    ap.add_argument("--case", action="append", default=[], metavar="FAMILY/SEED/PLANT/CASE",
+                    help="a case named in full (repeatable); instead of --families, --seed, --plant and --cases")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=blind.default_cache())
     a = ap.parse_args(argv)
@@ -148,41 +171,48 @@ def main(argv: list[str] | None = None) -> int:
     cases = [int(c) for c in a.cases.split(",")]
     rows = []
     base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
-                           "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept")}[a.compare]
+                           "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
+                           "opening-cap": ("uncapped", "capped")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
                            "scale (baseline), one thread",
             "time-terms": "rate and lag terms from weights kept per log, plays in one pass (shipped) vs recomputed "
-                          "at every evaluation (baseline), one thread"}[a.compare]
+                          "at every evaluation (baseline), one thread",
+            "opening-cap": "a play's start side judged with the capped forward map on the opening (shipped) vs the "
+                           "uncapped one (baseline), one thread"}[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
-    print(f"diagnose, 60 s at 500 Hz: {what}; seed {a.seed}, plant {a.plant} of each family, cases {a.cases}, "
+    if a.case:
+        todo = [(f, int(sd), int(pl), int(k)) for f, sd, pl, k in (c.split("/") for c in a.case)]
+        which = "cases " + ", ".join(a.case)
+    else:
+        todo = [(f, a.seed, a.plant, k) for f in a.families.split(",") if f for k in cases]
+        which = f"seed {a.seed}, plant {a.plant} of each family, cases {a.cases}"
+    print(f"diagnose, 60 s at 500 Hz: {what}; {which}, "
           f"{a.repeats} repeat(s); load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
           flush=True)
     print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  {same_what}",
           flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        for n, family in enumerate(f for f in a.families.split(",") if f):
-            plant = draw_plants(a.seed, family, a.plant + 1)[a.plant]
-            model = blind.identified_model(plant, a.seed, a.plant, args, work)
-            drawn = blind.draw_cases(a.seed, family, a.plant, 2, 3)
-            for k in cases:
-                names, case_seed = drawn[k]
-                fc = blind.field_case(plant, case_seed, tuple(names), args.duration, args.rate)
-                lg = blind.run_log(plant, fc.t, fc.u, fc.airspeed, fc.spec, fc.noise, fc.f_seed)
-                field_csv = work / f"{plant.name}-c{k}.csv"
-                blind.write_log(field_csv, lg)
-                for r in range(a.repeats):
-                    order = (False, True) if (n + k + r) % 2 == 0 else (True, False)
-                    got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads)
-                           for v in order}
-                    (tb, rb), (tr, rr) = got[False], got[True]
-                    same = rb["verdict"] == rr["verdict"] if by_verdict else rb == rr
-                    rows.append((tb, tr, same))
-                    print(f"{plant.name + f'-c{k}':<28}{'+'.join(names):<26}{tb:>13.1f}{tr:>13.1f}{tr / tb:>7.2f}  "
-                          f"{'yes' if same else 'NO'}", flush=True)
+        for n, (family, seed, index, k) in enumerate(todo):
+            plant = draw_plants(seed, family, index + 1)[index]
+            model = blind.identified_model(plant, seed, index, args, work)
+            names, case_seed = blind.draw_cases(seed, family, index, 2, 3)[k]
+            fc = blind.field_case(plant, case_seed, tuple(names), args.duration, args.rate)
+            lg = blind.run_log(plant, fc.t, fc.u, fc.airspeed, fc.spec, fc.noise, fc.f_seed)
+            field_csv = work / f"{plant.name}-c{k}.csv"
+            blind.write_log(field_csv, lg)
+            for r in range(a.repeats):
+                order = (False, True) if (n + k + r) % 2 == 0 else (True, False)
+                got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads)
+                       for v in order}
+                (tb, rb), (tr, rr) = got[False], got[True]
+                same = rb["verdict"] == rr["verdict"] if by_verdict else rb == rr
+                rows.append((tb, tr, same))
+                print(f"{plant.name + f'-c{k}':<28}{'+'.join(names):<26}{tb:>13.1f}{tr:>13.1f}{tr / tb:>7.2f}  "
+                      f"{'yes' if same else 'NO'}", flush=True)
     ratios = [tr / tb for tb, tr, _ in rows]
     print(f"\n{len(rows)} runs: time ratio {new_name} / {base_name} median {statistics.median(ratios):.2f} "
           f"(range {min(ratios):.2f}-{max(ratios):.2f}); median: {base_name} "

@@ -458,10 +458,22 @@ class Problem:
         if not eff.has_slack:
             return x
         x_rel = apply_input_effects(eff, self.t, self.u, RELEASED)
+        cost = [self._opening_cost(p, xs) for xs in (x, x_rel)]
+        return x_rel if released_start_wins(cost[0], cost[1], self._opening, self._noise) else x
+
+    def _opening_cost(self, p: BoucWenParams, x: np.ndarray) -> float:
+        """Squared error of the core from ``z0_for`` over the log's opening stretch; inf when the start drives
+        more of the opening beyond the model's monotone range than a candidate may (``MAX_SATURATED``, as
+        ``_grid_run``): such a start is not a candidate, and each such sample costs a slow search for the
+        range's edge (a whole opening of them took seconds per start on a heavy-friction rig)."""
         m = self._opening
-        cost = [squared_error(forward(p, np.ascontiguousarray(xs[:m]), z0=self.z0_for(p, xs))[0], self.w[:m])
-                for xs in (x, x_rel)]
-        return x_rel if released_start_wins(cost[0], cost[1], m, self._noise) else x
+        xo = np.ascontiguousarray(x[:m])
+        z0 = self.z0_for(p, x)
+        w, z = np.empty_like(xo), np.empty_like(xo)
+        cap = max(10, int(MAX_SATURATED * m)) + self._extra_flags
+        if forward_run_capped(p.to_array(), xo, rest_warp(p, float(xo[0]), z0), z0, w, z, cap) < 0:
+            return math.inf
+        return squared_error(w, self.w[:m])
 
     def _grid_run(self, p: BoucWenParams, x: np.ndarray, capped: bool) -> tuple[int, np.ndarray, np.ndarray]:
         """(samples of the compressed path beyond the model's monotone range, or -1 once past the candidates'

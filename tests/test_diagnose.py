@@ -1004,3 +1004,19 @@ def test_the_default_thread_count_leaves_the_busy_cores_alone(monkeypatch, tmp_p
     monkeypatch.setattr(command, "idle_cores", lambda window_s: None)
     monkeypatch.setattr(command.os, "getloadavg", unknown)
     assert command.free_cores() == 4
+
+
+def test_an_opening_driven_beyond_the_model_costs_inf_and_an_ordinary_one_its_squared_error():
+    """The slack side's opening cost: a start whose opening leaves the model's monotone range on more samples
+    than a candidate may is no start (inf, without simulating the rest of the opening); any other start costs
+    the squared error of the uncapped forward map from the same state."""
+    t, u, w, v = make_log(Effects(), seed=5, duration=10.0)
+    prob = Problem(t, u, w, v, P, Effects())
+    m = min(t.size, 2000)
+    z0 = prob.z0_for(P, u)
+    want = float(np.sum((forward(P, u[:m], z0=z0)[0] - w[:m]) ** 2))
+    assert prob._opening_cost(P, u) == pytest.approx(want, rel=1e-12)
+    w_turn = -P.a2 / (2.0 * P.a1)  # u(w) has its maximum here: beyond it no warp gives the input
+    u_max = P.a1 * w_turn ** 2 + P.a2 * w_turn + P.a3 + abs(P.az) * 2.0
+    beyond = u + (u_max - float(np.min(u[:m]))) + 5.0
+    assert prob._opening_cost(P, beyond) == math.inf
