@@ -27,6 +27,7 @@ from warpbridge.model.diagnose import (
 )
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
+from warpbridge.model.initial_state import OPENING_MAX
 from warpbridge.model.model_error import bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
@@ -1012,7 +1013,7 @@ def test_an_opening_driven_beyond_the_model_costs_inf_and_an_ordinary_one_its_sq
     the squared error of the uncapped forward map from the same state."""
     t, u, w, v = make_log(Effects(), seed=5, duration=10.0)
     prob = Problem(t, u, w, v, P, Effects())
-    m = min(t.size, 2000)
+    m = min(t.size, OPENING_MAX)
     z0 = prob.z0_for(P, u)
     want = float(np.sum((forward(P, u[:m], z0=z0)[0] - w[:m]) ** 2))
     assert prob._opening_cost(P, u) == pytest.approx(want, rel=1e-12)
