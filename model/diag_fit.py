@@ -463,27 +463,27 @@ class Problem:
 
     def _opening_cost(self, p: BoucWenParams, x: np.ndarray) -> float:
         """Squared error of the core from ``z0_for`` over the log's opening stretch; inf when the start drives
-        more of the opening beyond the model's monotone range than a candidate may (``MAX_SATURATED``, as
-        ``_grid_run``): such a start is not a candidate, and each such sample costs a slow search for the
+        more of the opening beyond the model's monotone range than a candidate may (``_run_capped``, as the
+        whole-log run): such a start is not a candidate, and each such sample costs a slow search for the
         range's edge (a whole opening of them took seconds per start on a heavy-friction rig)."""
         m = self._opening
-        xo = np.ascontiguousarray(x[:m])
-        z0 = self.z0_for(p, x)
-        w, z = np.empty_like(xo), np.empty_like(xo)
-        cap = max(10, int(MAX_SATURATED * m)) + self._extra_flags
-        if forward_run_capped(p.to_array(), xo, rest_warp(p, float(xo[0]), z0), z0, w, z, cap) < 0:
-            return math.inf
-        return squared_error(w, self.w[:m])
+        flagged, w = self._run_capped(p, np.ascontiguousarray(x[:m]), self.z0_for(p, x), capped=True)
+        return math.inf if flagged < 0 else squared_error(w, self.w[:m])
 
     def _grid_run(self, p: BoucWenParams, x: np.ndarray, capped: bool) -> tuple[int, np.ndarray, np.ndarray]:
         """(samples of the compressed path beyond the model's monotone range, or -1 once past the candidates'
         allowance when ``capped``; the path's indices; the core warp on them)."""
         idx = travel_grid(x, self.travel_step) if self.travel_step > 0 else np.arange(x.size)
-        xk = np.ascontiguousarray(x[idx])
-        wk, zk = np.empty_like(xk), np.empty_like(xk)
-        cap = max(10, int(MAX_SATURATED * xk.size)) + self._extra_flags if capped else xk.size
-        z0 = self.z0_for(p, x)
-        return forward_run_capped(p.to_array(), xk, rest_warp(p, float(x[0]), z0), z0, wk, zk, cap), idx, wk
+        flagged, wk = self._run_capped(p, np.ascontiguousarray(x[idx]), self.z0_for(p, x), capped)
+        return flagged, idx, wk
+
+    def _run_capped(self, p: BoucWenParams, x: np.ndarray, z0: float, capped: bool) -> tuple[int, np.ndarray]:
+        """(samples beyond the model's monotone range, or -1 once past a candidate's allowance when ``capped``:
+        ``MAX_SATURATED`` of them, at least 10, plus the nominal's own excess; the core warp) along ``x`` from
+        rest at state ``z0``."""
+        w, z = np.empty_like(x), np.empty_like(x)
+        cap = max(10, int(MAX_SATURATED * x.size)) + self._extra_flags if capped else x.size
+        return forward_run_capped(p.to_array(), x, rest_warp(p, float(x[0]), z0), z0, w, z, cap), w
 
     def _lag(self, x: np.ndarray, eff: Effects) -> np.ndarray:
         return sensor_filtered(eff, self.t, x)
