@@ -1,6 +1,7 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
-    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap]
+    python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
+                                                        trial-reach]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
@@ -19,6 +20,11 @@ play after another), both on one thread; the reports must be identical.
 more of the opening than a candidate may leaves the model's monotone range (as shipped: that start costs inf)
 against the uncapped map (the code before: every such sample searched for the range's edge), both on one thread;
 the reports must be identical. The slow cases are on other plants than the default's: name them with ``--case``.
+``--compare trial-reach``: the forward solve's trial warps kept within ``kernels.TRIAL_REACH`` of the last point
+short of the sample's target before a bracket is found (as shipped) against unbounded (the code before: from a
+near-flat slope a Newton guess went millions of degrees out, and every march there ran out of sub-steps), both
+on one thread. The bound is a compiled-in constant, so each variant runs in its own process with its own numba
+cache (under ``--cache``), after an untimed warm-up on the log's first 10 s; the reports are compared.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at ``--seed``,
 the case numbers given, or each ``--case`` family/seed/plant/case; 10-12 are its pairs, usually the slowest; all
@@ -36,6 +42,7 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -48,7 +55,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
-from warpbridge.model import model_error  # noqa: E402
+from warpbridge.model import kernels, model_error  # noqa: E402
 from warpbridge.model.boucwen import forward  # noqa: E402
 from warpbridge.model.diag_fit import Problem  # noqa: E402
 from warpbridge.model.effects import lagged, play  # noqa: E402
@@ -112,13 +119,47 @@ _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smoo
                         "play_states": _old_play_states}
 
 
+_TRIAL_REACH_RUN = """
+import sys, time
+from warpbridge.model import kernels
+kernels.TRIAL_REACH = float(sys.argv[1])  # before the first compile: numba freezes it into the kernels
+from warpbridge.bridge.cli import main
+if main(sys.argv[2:3] + [sys.argv[3], "--quiet", "--jobs", "1"] + sys.argv[5:]) != 0:
+    sys.exit("warm-up failed")
+t0 = time.perf_counter()
+code = main(sys.argv[2:3] + [sys.argv[4], "--quiet", "--jobs", "1"] + sys.argv[5:])
+print(time.perf_counter() - t0)
+sys.exit(code)
+"""
+
+
+def trial_reach_diagnose(field_csv: Path, model: Path, out: Path, new: bool, cache: Path) -> float:
+    """Seconds of one plain ``diagnose`` in a process of its own with the shipped trial reach (``new``) or an
+    unbounded one, after an untimed warm-up on the log's first 10 s (compiles the kernels into the variant's
+    own numba cache the first time)."""
+    lines = field_csv.read_text().splitlines(keepends=True)
+    t0 = float(lines[1].split(",")[0])
+    head = field_csv.with_name(field_csv.stem + "-head.csv")
+    head.write_text("".join([lines[0]] + [ln for ln in lines[1:] if float(ln.split(",")[0]) - t0 < 10.0]))
+    reach = repr(kernels.TRIAL_REACH) if new else "inf"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache / "numba" / f"trial-reach-{reach}"))
+    proc = subprocess.run([sys.executable, "-c", _TRIAL_REACH_RUN, reach, "diagnose", str(head), str(field_csv),
+                           "--model", str(model), "--report", str(out)], env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"diagnose failed: {proc.stderr[-2000:]}")
+    return float(proc.stdout.strip().splitlines()[-1])
+
+
 def _strip(report: dict) -> dict:
     return {k: v for k, v in report.items() if k not in ("seconds", "created", "model_evaluations")}
 
 
-def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: str, threads: int
+def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: str, threads: int, cache: Path
                    ) -> tuple[float, dict]:
     """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline."""
+    if compare == "trial-reach":
+        seconds = trial_reach_diagnose(field_csv, model, out, new, cache)
+        return seconds, _strip(json.loads(out.read_text()))
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
     jobs = threads if compare == "threads" and new else 1
@@ -148,14 +189,16 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap"),
+    ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
+                                              "trial-reach"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
                          "against kept on the bench's travel scale; time-terms: the rate and lag terms from weights "
                          "kept per log and the plays in one pass against recomputed at every evaluation; "
                          "opening-cap: a play's start side judged with the capped forward map against the uncapped "
-                         "one")
+                         "one; trial-reach: the forward solve's trial warps bounded before a bracket against "
+                         "unbounded")
     ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
@@ -172,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
-                           "opening-cap": ("uncapped", "capped")}[a.compare]
+                           "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -180,7 +223,9 @@ def main(argv: list[str] | None = None) -> int:
             "time-terms": "rate and lag terms from weights kept per log, plays in one pass (shipped) vs recomputed "
                           "at every evaluation (baseline), one thread",
             "opening-cap": "a play's start side judged with the capped forward map on the opening (shipped) vs the "
-                           "uncapped one (baseline), one thread"}[a.compare]
+                           "uncapped one (baseline), one thread",
+            "trial-reach": f"the forward solve's trial warps within {kernels.TRIAL_REACH:g} deg before a bracket "
+                           "(shipped) vs unbounded (baseline), one thread, each in its own process"}[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
     if a.case:
@@ -206,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
             blind.write_log(field_csv, lg)
             for r in range(a.repeats):
                 order = (False, True) if (n + k + r) % 2 == 0 else (True, False)
-                got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads)
+                got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads,
+                                             a.cache)
                        for v in order}
                 (tb, rb), (tr, rr) = got[False], got[True]
                 same = rb["verdict"] == rr["verdict"] if by_verdict else rb == rr

@@ -45,6 +45,7 @@ TOL_Z = 1e-8  # local error allowed per sub-step, in units of z
 NEWTON_ACCEPT = 1e-6  # relative Newton correction below which the forward solve stops
 Z_CAP = 1.0e6  # |z| beyond this is a diverged parameter set
 MAX_SUBSTEPS = 20_000  # per sample; beyond this a parameter set counts as diverged
+TRIAL_REACH = 8.0  # deg; before a bracket, a trial warp lies at most this (or twice the progress) past the last
 THIRD = 1.0 / 3.0
 SIXTH = 1.0 / 6.0
 
@@ -395,6 +396,10 @@ def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, t
         corr = 1.0 - 0.5 * d1 * step * inv_d0
         if corr > 0.5 and corr < 1.5:
             w = w0 + step * corr
+    # a near-flat start (a slope of 1e-7 where the model is degenerate) would send the first trial
+    # millions of degrees out, and each march there runs out of sub-steps before it is bisected back
+    if (w - w0) * sdw > TRIAL_REACH:
+        w = w0 + sdw * TRIAL_REACH
     best_w = w0
     best_z = z0
     status = 0
@@ -447,6 +452,9 @@ def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, t
         else:
             if not (wn == wn) or (wn - lo) * sdw <= 0.0:
                 wn = lo + 2.0 * (lo - w0) + sdw * 1e-6 * (abs(lo) + 1.0)
+            reach = max(TRIAL_REACH, 2.0 * abs(lo - w0))
+            if (wn - lo) * sdw > reach:
+                wn = lo + sdw * reach
         w = wn
         if status == 1 and hi == hi:
             # find where du/dw vanishes: bisect on the slope instead of g

@@ -154,6 +154,24 @@ def test_a_long_move_from_rest_into_a_stiff_saturation_stays_accurate():
         assert np.isfinite(big) and abs(big - z) < 1e-6, (z0, w1, big, z)
 
 
+def test_a_sample_beyond_the_range_from_a_near_flat_start_stops_at_the_edge_within_one_march():
+    """A candidate a diagnosis fit drew on a 383 deg sheath: held at the range's edge at w ~ 0, where the
+    slope du/dw is 6e-7, the next releasing sample cannot be followed (past w = 0 the hysteretic term turns
+    u back). A Newton guess from that slope lands 1.5e6 deg away; trial warps that far each ran out of
+    sub-steps before the bisection came back (210 000 sub-steps for this one sample). The sample must stay
+    at the edge and cost less than one march's sub-step allowance."""
+    from warpbridge.model import kernels as K
+
+    p = np.array([0.04882922073694175, 7.59596870033999e-08, 3.5620759518609826, 1.0, 55.2110080890175,
+                  4.994154015953744, 1.6361126872335243e21, 8.180563435771711e20, -6.929481894915029e20,
+                  8.180563435771711e20, -6.929481894915029e20, -1.38589637906185e21])
+    w0, z0, u = 6.842125925439273e-15, -0.04376482399996928, 3.403994620743479
+    assert K.output_u(p, w0, z0) - u > 0.1  # a release the model must follow by 0.11 mm
+    w, z, _, status, used = K._forward_solve(p, w0, z0, -1.0, u, -1, K.TOL_Z)
+    assert status == 1 and w == w0 and z == z0
+    assert used < K.MAX_SUBSTEPS
+
+
 @pytest.mark.parametrize("z0", [1e-4, 1e-3, -1e-4, 0.0])
 @pytest.mark.parametrize("h", [0.25, 0.1, 0.02])
 def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
