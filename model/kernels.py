@@ -46,6 +46,7 @@ NEWTON_ACCEPT = 1e-6  # relative Newton correction below which the forward solve
 Z_CAP = 1.0e6  # |z| beyond this is a diverged parameter set
 MAX_SUBSTEPS = 20_000  # per sample; beyond this a parameter set counts as diverged
 TRIAL_REACH = 8.0  # deg; before a bracket, a trial warp lies at most this (or twice the progress) past the last
+BLOWUP_SPARE = 2.0  # a march ends as diverged once it runs this many times past where |z| must have blown up
 THIRD = 1.0 / 3.0
 SIXTH = 1.0 / 6.0
 
@@ -188,6 +189,16 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
             psi = _psi(p, sdw, sw, _sgn(z))
             k1 = A - zn * psi
             inv_z = 1.0 / z
+            # d|z|/ds = q |z|^n + sgn(z) sdw A with q = -sgn(z) sdw Psi, constant while sgn(w) holds. With q > 0
+            # and d|z|/ds > 0, |z| passes any cap within |z| / ((n - 1) rate), rate = q |z|^n + min(sgn(z) sdw A, 0).
+            # Marching there takes thousands of ever shorter sub-steps (the tolerance is absolute), so a march
+            # that far or further (``BLOWUP_SPARE`` times, to spare) ends as diverged at once.
+            grow = -_sgn(z) * sdw * psi * zn
+            if grow > 0.0 and n > 1.0:
+                rate = grow + min(_sgn(z) * sdw * A, 0.0)
+                span = remaining if w * sdw >= 0.0 else min(remaining, -w * sdw)
+                if rate > 0.0 and BLOWUP_SPARE * az < span * (n - 1.0) * rate:
+                    return np.nan, -1.0, wm, zm, znm, step + 1
             js = -n * zn * inv_z * psi * sdw  # d(dz/ds)/dz along the path s = |w - w0|
             jac = abs(js)
             if jac > 0.0:

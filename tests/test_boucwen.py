@@ -172,6 +172,44 @@ def test_a_sample_beyond_the_range_from_a_near_flat_start_stops_at_the_edge_with
     assert used < K.MAX_SUBSTEPS
 
 
+# a candidate a diagnosis fit drew on a LuGre rig, held at its range's edge: on a release |z| grows without
+# bound (Psi > 0 with z against the motion, |z|^n Psi > A), passing any cap 1.7e-13 deg from the start
+LUGRE_CANDIDATE = np.array([0.008997178380463764, 0.610308641392281, -0.4597136022554469, 1.0, 117.3167819696055,
+                            4.975502231065359, 5.007772332134897e19, 2.5038592922966987e19, 9.951167080672473e20,
+                            2.5038592922966987e19, 9.951167080672473e20, 1.9902328797654677e21])
+LUGRE_EDGE = (7.725389614747737, 0.004280361061038601)
+
+
+def test_a_release_into_a_blow_up_stops_at_the_edge_within_one_march():
+    """Each march past the blow-up crawled through 4238 ever shorter sub-steps to the cap on |z| before it
+    counted as diverged, and the bisection back to the edge took 33 of them (135 623 sub-steps for one
+    sample). A march bound to pass the blow-up ends at once: the sample stays at the edge, and cheaply."""
+    from warpbridge.model import kernels as K
+
+    w0, z0 = LUGRE_EDGE
+    u = 4.7287308451585925
+    assert K.output_u(LUGRE_CANDIDATE, w0, z0) - u > 0.05
+    w, z, _, status, used = K._forward_solve(LUGRE_CANDIDATE, w0, z0, -1.0, u, -1, K.TOL_Z)
+    assert status == 1 and w == w0 and z == z0
+    assert used < K.MAX_SUBSTEPS
+
+
+def test_a_march_short_of_a_blow_up_is_followed_and_one_past_it_diverges():
+    """Short of the blow-up the march is integrated as before (it matches a chain of small marches as far as
+    the steep climb allows: a few 1e-6 in z); a march far past it is NaN, as the cap on |z| made it."""
+    from warpbridge.model import kernels as K
+
+    w0, z0 = LUGRE_EDGE
+    w1 = w0 - 1.5e-13
+    one = K.integrate_z(LUGRE_CANDIDATE, w0, z0, w1)
+    z = z0
+    grid = np.linspace(w0, w1, 41)
+    for a, b in zip(grid[:-1], grid[1:], strict=True):
+        z = K.integrate_z(LUGRE_CANDIDATE, a, z, b)
+    assert np.isfinite(one) and one > 1.5 * z0 and abs(one - z) < 1e-3 * abs(z)
+    assert np.isnan(K.integrate_z(LUGRE_CANDIDATE, w0, z0, w0 - 1e-12))
+
+
 @pytest.mark.parametrize("z0", [1e-4, 1e-3, -1e-4, 0.0])
 @pytest.mark.parametrize("h", [0.25, 0.1, 0.02])
 def test_one_move_leaving_zero_matches_a_chain_of_tiny_moves(z0, h):
