@@ -1,7 +1,7 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
-                                                        trial-reach]
+                                                        trial-reach|blow-up]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
@@ -22,9 +22,12 @@ against the uncapped map (the code before: every such sample searched for the ra
 the reports must be identical. The slow cases are on other plants than the default's: name them with ``--case``.
 ``--compare trial-reach``: the forward solve's trial warps kept within ``kernels.TRIAL_REACH`` of the last point
 short of the sample's target before a bracket is found (as shipped) against unbounded (the code before: from a
-near-flat slope a Newton guess went millions of degrees out, and every march there ran out of sub-steps), both
-on one thread. The bound is a compiled-in constant, so each variant runs in its own process with its own numba
-cache (under ``--cache``), after an untimed warm-up on the log's first 10 s; the reports are compared.
+near-flat slope a Newton guess went millions of degrees out, and every march there ran out of sub-steps).
+``--compare blow-up``: a march bound to pass a blow-up of the hysteretic state ends as diverged at once (as
+shipped, ``kernels.BLOWUP_SPARE``) against marched until |z| passes its cap (the code before: thousands of ever
+shorter sub-steps per march). Both on one thread; these are compiled-in constants, so each variant runs in its
+own process with its own numba cache (under ``--cache``), timed after an untimed warm-up on the log's first
+10 s; the reports are compared.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at ``--seed``,
 the case numbers given, or each ``--case`` family/seed/plant/case; 10-12 are its pairs, usually the slowest; all
@@ -119,10 +122,13 @@ _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smoo
                         "play_states": _old_play_states}
 
 
-_TRIAL_REACH_RUN = """
+_KERNEL_VARIANT_RUN = """
 import sys, time
 from warpbridge.model import kernels
-kernels.TRIAL_REACH = float(sys.argv[1])  # before the first compile: numba freezes it into the kernels
+for item in sys.argv[1].split(","):  # before the first compile: numba freezes module constants into the kernels
+    if item:
+        name, value = item.split("=")
+        setattr(kernels, name, float(value))
 from warpbridge.bridge.cli import main
 if main(sys.argv[2:3] + [sys.argv[3], "--quiet", "--jobs", "1"] + sys.argv[5:]) != 0:
     sys.exit("warm-up failed")
@@ -132,19 +138,21 @@ print(time.perf_counter() - t0)
 sys.exit(code)
 """
 
+KERNEL_BASELINES = {"trial-reach": "TRIAL_REACH=inf", "blow-up": "BLOWUP_SPARE=inf"}  # the compiled-in constants
 
-def trial_reach_diagnose(field_csv: Path, model: Path, out: Path, new: bool, cache: Path) -> float:
-    """Seconds of one plain ``diagnose`` in a process of its own with the shipped trial reach (``new``) or an
-    unbounded one, after an untimed warm-up on the log's first 10 s (compiles the kernels into the variant's
-    own numba cache the first time)."""
+
+def kernel_variant_diagnose(field_csv: Path, model: Path, out: Path, overrides: str, cache: Path) -> float:
+    """Seconds of one plain ``diagnose`` in a process of its own whose kernels are compiled with the
+    ``overrides`` of ``kernels``' constants ("NAME=value,..."; empty: as shipped), after an untimed warm-up on
+    the log's first 10 s (which compiles them into the variant's own numba cache the first time)."""
     lines = field_csv.read_text().splitlines(keepends=True)
     t0 = float(lines[1].split(",")[0])
     head = field_csv.with_name(field_csv.stem + "-head.csv")
     head.write_text("".join([lines[0]] + [ln for ln in lines[1:] if float(ln.split(",")[0]) - t0 < 10.0]))
-    reach = repr(kernels.TRIAL_REACH) if new else "inf"
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache / "numba" / f"trial-reach-{reach}"))
-    proc = subprocess.run([sys.executable, "-c", _TRIAL_REACH_RUN, reach, "diagnose", str(head), str(field_csv),
-                           "--model", str(model), "--report", str(out)], env=env, capture_output=True, text=True)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache / "numba" / ("kernels-" + (overrides or "shipped"))))
+    proc = subprocess.run([sys.executable, "-c", _KERNEL_VARIANT_RUN, overrides, "diagnose", str(head),
+                           str(field_csv), "--model", str(model), "--report", str(out)],
+                          env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"diagnose failed: {proc.stderr[-2000:]}")
     return float(proc.stdout.strip().splitlines()[-1])
@@ -157,8 +165,8 @@ def _strip(report: dict) -> dict:
 def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: str, threads: int, cache: Path
                    ) -> tuple[float, dict]:
     """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline."""
-    if compare == "trial-reach":
-        seconds = trial_reach_diagnose(field_csv, model, out, new, cache)
+    if compare in KERNEL_BASELINES:
+        seconds = kernel_variant_diagnose(field_csv, model, out, "" if new else KERNEL_BASELINES[compare], cache)
         return seconds, _strip(json.loads(out.read_text()))
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
@@ -190,7 +198,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
-                                              "trial-reach"),
+                                              "trial-reach", "blow-up"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -198,7 +206,8 @@ def main(argv: list[str] | None = None) -> int:
                          "kept per log and the plays in one pass against recomputed at every evaluation; "
                          "opening-cap: a play's start side judged with the capped forward map against the uncapped "
                          "one; trial-reach: the forward solve's trial warps bounded before a bracket against "
-                         "unbounded")
+                         "unbounded; blow-up: a march bound to pass a blow-up of the state ended at once against "
+                         "marched to the cap")
     ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
@@ -215,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
-                           "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded")}[a.compare]
+                           "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
+                           "blow-up": ("to the cap", "ended")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -225,7 +235,10 @@ def main(argv: list[str] | None = None) -> int:
             "opening-cap": "a play's start side judged with the capped forward map on the opening (shipped) vs the "
                            "uncapped one (baseline), one thread",
             "trial-reach": f"the forward solve's trial warps within {kernels.TRIAL_REACH:g} deg before a bracket "
-                           "(shipped) vs unbounded (baseline), one thread, each in its own process"}[a.compare]
+                           "(shipped) vs unbounded (baseline), one thread, each in its own process",
+            "blow-up": f"a march bound to pass a blow-up of |z| ({kernels.BLOWUP_SPARE:g}x its bound) ended at once "
+                       "(shipped) vs marched to the cap on |z| (baseline), one thread, each in its own process"
+            }[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
     if a.case:

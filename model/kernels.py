@@ -132,12 +132,12 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
     """``integrate_z`` carrying zn = |z|^n (-1 when not known): returns (z, zn) at w1, taking
     ``zn0`` = |z0|^n if already known. Powers are the kernels' costliest operation; the value at
     the end of a step is carried from the nearest stage by ``_carry_pow`` (exact to rounding)."""
-    z, zc, _, _, _, _ = _march(p, w0, z0, zn0, w1, MAX_SUBSTEPS, TOL_Z)
+    z, zc, _, _, _, _ = _march(p, w0, z0, zn0, w1, MAX_SUBSTEPS, TOL_Z, True)
     return z, zc
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
-def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: float):
+def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: float, end_blowup: bool):
     """The greedy sub-step march from (w0, z0) to w1, at most ``max_steps`` sub-steps of local
     error at most ``tol``.
 
@@ -146,7 +146,10 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
     taken. Every sub-step before (wm, zm) was sized without regard to w1, so a
     march from w0 to any w1' beyond wm passes through (wm, zm) bit for bit and
     may resume there: the forward solve's iterations do, instead of integrating
-    from the sample's start again each time."""
+    from the sample's start again each time. ``end_blowup``: a march bound to pass a
+    blow-up of |z| ends as diverged at once (the same NaN, far fewer sub-steps); off
+    where sub-steps are counted against a budget (identification), whose search the
+    count steers."""
     wm = w0
     zm = z0
     znm = zn0
@@ -194,7 +197,7 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
             # Marching there takes thousands of ever shorter sub-steps (the tolerance is absolute), so a march
             # that far or further (``BLOWUP_SPARE`` times, to spare) ends as diverged at once.
             grow = -_sgn(z) * sdw * psi * zn
-            if grow > 0.0 and n > 1.0:
+            if end_blowup and grow > 0.0 and n > 1.0:
                 rate = grow + min(_sgn(z) * sdw * A, 0.0)
                 span = remaining if w * sdw >= 0.0 else min(remaining, -w * sdw)
                 if rate > 0.0 and BLOWUP_SPARE * az < span * (n - 1.0) * rate:
@@ -418,7 +421,7 @@ def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, t
         cap = MAX_SUBSTEPS if budget < 0 else min(MAX_SUBSTEPS, budget - used)
         if cap <= 0:
             return best_w, best_z, -1.0, 3, used
-        z, zc, mw, mz, mzn, taken = _march(p, rw, rz, rzn, w, cap, tol)
+        z, zc, mw, mz, mzn, taken = _march(p, rw, rz, rzn, w, cap, tol, budget < 0)
         used += taken
         if not (z == z):
             if budget >= 0 and used >= budget:
@@ -474,7 +477,7 @@ def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, t
                 cap = MAX_SUBSTEPS if budget < 0 else min(MAX_SUBSTEPS, budget - used)
                 if cap <= 0:
                     return lo, lo_z, -1.0, 3, used
-                zm, _, mw, mz, mzn, taken = _march(p, rw, rz, rzn, wm, cap, tol)
+                zm, _, mw, mz, mzn, taken = _march(p, rw, rz, rzn, wm, cap, tol, budget < 0)
                 used += taken
                 if zm == zm and slope_du_dw(p, wm, zm, sdw) > 0.0 and (output_u(p, wm, zm) - u) * sdw < 0.0:
                     lo = wm
