@@ -132,7 +132,7 @@ def integrate_z_from(p, w0: float, z0: float, zn0: float, w1: float):
     """``integrate_z`` carrying zn = |z|^n (-1 when not known): returns (z, zn) at w1, taking
     ``zn0`` = |z0|^n if already known. Powers are the kernels' costliest operation; the value at
     the end of a step is carried from the nearest stage by ``_carry_pow`` (exact to rounding)."""
-    z, zc, _, _, _, _ = _march(p, w0, z0, zn0, w1, MAX_SUBSTEPS, TOL_Z, True)
+    z, zc, _, _, _, _ = _march(p, w0, z0, zn0, w1, MAX_SUBSTEPS, TOL_Z, False)
     return z, zc
 
 
@@ -147,9 +147,10 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
     march from w0 to any w1' beyond wm passes through (wm, zm) bit for bit and
     may resume there: the forward solve's iterations do, instead of integrating
     from the sample's start again each time. ``end_blowup``: a march bound to pass a
-    blow-up of |z| ends as diverged at once (the same NaN, far fewer sub-steps); off
-    where sub-steps are counted against a budget (identification), whose search the
-    count steers."""
+    blow-up of |z| ends as diverged at once (the same NaN, far fewer sub-steps). On in
+    the unbudgeted forward solve only: off where sub-steps are counted against a budget
+    (identification, whose search the count steers) and in the inverse map (a fitted
+    model does not blow up there, and the control loop would pay for the check)."""
     wm = w0
     zm = z0
     znm = zn0
@@ -189,16 +190,17 @@ def _march(p, w0: float, z0: float, zn0: float, w1: float, max_steps: int, tol: 
         inv_z = 0.0
         if az > 0.0:
             zn = zc if zc >= 0.0 else _pow_n(az, n)
-            psi = _psi(p, sdw, sw, _sgn(z))
+            sz = _sgn(z)
+            psi = _psi(p, sdw, sw, sz)
             k1 = A - zn * psi
             inv_z = 1.0 / z
-            # d|z|/ds = q |z|^n + sgn(z) sdw A with q = -sgn(z) sdw Psi, constant while sgn(w) holds. With q > 0
-            # and d|z|/ds > 0, |z| passes any cap within |z| / ((n - 1) rate), rate = q |z|^n + min(sgn(z) sdw A, 0).
-            # Marching there takes thousands of ever shorter sub-steps (the tolerance is absolute), so a march
-            # that far or further (``BLOWUP_SPARE`` times, to spare) ends as diverged at once.
-            grow = -_sgn(z) * sdw * psi * zn
-            if end_blowup and grow > 0.0 and n > 1.0:
-                rate = grow + min(_sgn(z) * sdw * A, 0.0)
+            if end_blowup and n > 1.0:
+                # d|z|/ds = q |z|^n + sz sdw A with q = -sz sdw Psi, constant while sgn(w) holds. Where
+                # rate = q |z|^n + min(sz sdw A, 0) > 0 (so q > 0), |z| passes any cap within
+                # |z| / ((n - 1) rate). Marching there takes thousands of ever shorter sub-steps (the
+                # tolerance is absolute), so a march that far or further (``BLOWUP_SPARE`` times, to
+                # spare) ends as diverged at once.
+                rate = -sz * sdw * psi * zn + min(sz * sdw * A, 0.0)
                 span = remaining if w * sdw >= 0.0 else min(remaining, -w * sdw)
                 if rate > 0.0 and BLOWUP_SPARE * az < span * (n - 1.0) * rate:
                     return np.nan, -1.0, wm, zm, znm, step + 1
@@ -366,6 +368,16 @@ def forward_step_zn(p, w0: float, z0: float, zn0: float, u: float):
     return w, z, zn, st
 
 
+@njit(cache=True, inline="always")
+def _within_reach(w: float, lo: float, w0: float, sdw: float) -> float:
+    """A trial warp before the target is bracketed, kept within ``TRIAL_REACH`` (or twice the progress from
+    the sample's start w0) past lo, the furthest point known short of it: from a near-flat slope (1e-7
+    where a candidate is degenerate) a Newton guess lands millions of degrees out, and each march there
+    runs out of sub-steps before it is bisected back."""
+    reach = max(TRIAL_REACH, 2.0 * abs(lo - w0))
+    return lo + sdw * reach if (w - lo) * sdw > reach else w
+
+
 @njit(cache=True, fastmath=False, error_model="numpy")
 def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, tol: float):
     """``forward_step_zn`` within a budget of sub-steps (-1: none beyond MAX_SUBSTEPS per march), with
@@ -410,10 +422,7 @@ def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, t
         corr = 1.0 - 0.5 * d1 * step * inv_d0
         if corr > 0.5 and corr < 1.5:
             w = w0 + step * corr
-    # a near-flat start (a slope of 1e-7 where the model is degenerate) would send the first trial
-    # millions of degrees out, and each march there runs out of sub-steps before it is bisected back
-    if (w - w0) * sdw > TRIAL_REACH:
-        w = w0 + sdw * TRIAL_REACH
+    w = _within_reach(w, w0, w0, sdw)
     best_w = w0
     best_z = z0
     status = 0
@@ -466,9 +475,7 @@ def _forward_solve(p, w0: float, z0: float, zn0: float, u: float, budget: int, t
         else:
             if not (wn == wn) or (wn - lo) * sdw <= 0.0:
                 wn = lo + 2.0 * (lo - w0) + sdw * 1e-6 * (abs(lo) + 1.0)
-            reach = max(TRIAL_REACH, 2.0 * abs(lo - w0))
-            if (wn - lo) * sdw > reach:
-                wn = lo + sdw * reach
+            wn = _within_reach(wn, lo, w0, sdw)
         w = wn
         if status == 1 and hi == hi:
             # find where du/dw vanishes: bisect on the slope instead of g
