@@ -1,7 +1,7 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
-                                                        trial-reach|blow-up]
+                                                        trial-reach|blow-up|passes]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
@@ -28,6 +28,12 @@ shipped, ``kernels.BLOWUP_SPARE``) against marched until |z| passes its cap (the
 shorter sub-steps per march). Both on one thread; these are compiled-in constants, so each variant runs in its
 own process with its own numba cache (under ``--cache``), timed after an untimed warm-up on the log's first
 10 s; the reports are compared.
+``--compare passes``: what every evaluation of a candidate computes besides its core run, in compiled passes row
+by row (as shipped: the play and lag states stepped together per sample, ``np.gradient``'s weights kept per log,
+``initial_state.algebraic_z0`` in one pass; the correction's input terms at a band other than 1 kept for the last
+two paths, for fits that hold a band while they move the rest) against the code before (one column after another,
+``np.gradient`` and numpy calls at every evaluation, those input terms computed afresh), both on one thread; the
+same arithmetic, so the reports must be identical.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at ``--seed``,
 the case numbers given, or each ``--case`` family/seed/plant/case; 10-12 are its pairs, usually the slowest; all
@@ -58,7 +64,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
-from warpbridge.model import kernels, model_error  # noqa: E402
+from warpbridge.model import diag_fit, initial_state, kernels, model_error  # noqa: E402
+from warpbridge.model._jit import njit  # noqa: E402
 from warpbridge.model.boucwen import forward  # noqa: E402
 from warpbridge.model.diag_fit import Problem  # noqa: E402
 from warpbridge.model.effects import lagged, play  # noqa: E402
@@ -122,6 +129,70 @@ _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smoo
                         "play_states": _old_play_states}
 
 
+@njit(cache=True)
+def _column_play_states(x, thresholds):
+    """The baseline of ``--compare passes``: one compiled pass per play, column by column."""
+    out = np.empty((x.shape[0], thresholds.shape[0]))
+    for j in range(thresholds.shape[0]):
+        r = thresholds[j]
+        out[:, j] = (x - play(x, 2.0 * r, x[0])) / r
+    return out
+
+
+@njit(cache=True)
+def _column_lags(w, factors, denom):
+    """The baseline of ``--compare passes``: one lag after another, column by column."""
+    out = np.empty((w.shape[0], factors.shape[0]))
+    for j in range(factors.shape[0]):
+        y = w[0] if w.shape[0] else 0.0
+        for k in range(w.shape[0]):
+            a = factors[j, k]
+            y = a * y + (1.0 - a) * w[k]
+            out[k, j] = (y - w[k]) / denom[j]
+    return out
+
+
+def _numpy_smooth_rate(t, w, terms=None):
+    """The baseline of ``--compare passes``: ``np.gradient`` at every call, the smoothing width kept."""
+    r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
+    k = (terms if terms is not None else model_error.time_terms(t)).smooth
+    if k > 1:
+        r = np.convolve(r, np.ones(k) / k, mode="same")
+    return r
+
+
+def _numpy_algebraic_z0(params, u, w) -> float:
+    """The baseline of ``--compare passes``: ``initial_state.algebraic_z0`` in numpy calls (the code before)."""
+    u = np.asarray(u, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    span = float(np.nanmax(u) - np.nanmin(u)) if u.size else 0.0
+    if span <= 0:
+        k = min(u.size, initial_state.FIRST_MAX)
+    else:
+        moved = np.abs(u[: initial_state.FIRST_MAX] - u[0]) > 0.02 * span
+        k = max(1, int(np.argmax(moved)) if moved.any() else min(u.size, initial_state.FIRST_MAX))
+    z = initial_state.algebraic_z(params, u[:k], w[:k])
+    z = z[np.isfinite(z)]
+    if z.size == 0:
+        return 0.0
+    lo, hi = initial_state.reachable_band(params, float(np.nanmedian(w[:k])) if np.isfinite(w[:k]).any() else 0.0)
+    return float(np.clip(np.median(z), lo, hi))
+
+
+def _uncached_band_terms(self, x: np.ndarray, band: float = 1.0) -> tuple:
+    """The baseline of ``--compare passes``: the input terms at a band other than 1 computed afresh at every
+    call (those at band 1 kept as shipped)."""
+    if band != 1.0:
+        return model_error.input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
+    return _SHIPPED_INPUT_TERMS(self, x, band)
+
+
+_PASSES_BASELINE = {(model_error.ErrorModel, "_input_terms"): _uncached_band_terms,
+                    (model_error, "_play_states"): _column_play_states, (model_error, "_lag_columns"): _column_lags,
+                    (model_error, "_smooth_rate"): _numpy_smooth_rate,
+                    (diag_fit, "algebraic_z0"): _numpy_algebraic_z0}
+
+
 _KERNEL_VARIANT_RUN = """
 import sys, time
 from warpbridge.model import kernels
@@ -170,6 +241,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         return seconds, _strip(json.loads(out.read_text()))
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
+    shipped_passes = {key: getattr(*key) for key in _PASSES_BASELINE}
     jobs = threads if compare == "threads" and new else 1
     if compare == "input-terms" and not new:
         model_error.ErrorModel._input_terms = _recomputed
@@ -180,6 +252,9 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
             setattr(model_error, name, fn)
     if compare == "opening-cap" and not new:
         Problem._opening_cost = _uncapped_opening
+    if compare == "passes" and not new:
+        for (module, name), fn in _PASSES_BASELINE.items():
+            setattr(module, name, fn)
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -190,6 +265,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         Problem._opening_cost = _SHIPPED_OPENING
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
+        for (module, name), fn in shipped_passes.items():
+            setattr(module, name, fn)
     if code != 0:
         raise RuntimeError(f"diagnose failed: {text}")
     return seconds, _strip(json.loads(out.read_text()))
@@ -198,7 +275,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
-                                              "trial-reach", "blow-up"),
+                                              "trial-reach", "blow-up", "passes"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -207,7 +284,9 @@ def main(argv: list[str] | None = None) -> int:
                          "opening-cap: a play's start side judged with the capped forward map against the uncapped "
                          "one; trial-reach: the forward solve's trial warps bounded before a bracket against "
                          "unbounded; blow-up: a march bound to pass a blow-up of the state ended at once against "
-                         "marched to the cap")
+                         "marched to the cap; passes: the per-evaluation terms (plays, lags, rate, start state) "
+                         "in row-order compiled passes, and the input terms at a held band kept, against the code "
+                         "before")
     ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
@@ -225,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
-                           "blow-up": ("to the cap", "ended")}[a.compare]
+                           "blow-up": ("to the cap", "ended"), "passes": ("before", "passes")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -237,7 +316,10 @@ def main(argv: list[str] | None = None) -> int:
             "trial-reach": f"the forward solve's trial warps within {kernels.TRIAL_REACH:g} deg before a bracket "
                            "(shipped) vs unbounded (baseline), one thread, each in its own process",
             "blow-up": f"a march bound to pass a blow-up of |z| ({kernels.BLOWUP_SPARE:g}x its bound) ended at once "
-                       "(shipped) vs marched to the cap on |z| (baseline), one thread, each in its own process"
+                       "(shipped) vs marched to the cap on |z| (baseline), one thread, each in its own process",
+            "passes": "the plays, lags, rate and start state of each evaluation in row-order compiled passes, "
+                      "the input terms at a held band kept (shipped) vs column passes, np.gradient and numpy "
+                      "calls, those terms recomputed (baseline), one thread"
             }[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"

@@ -18,11 +18,13 @@ w deg, z in the model's units (mm when az = 1).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
+from warpbridge.model._jit import njit
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.effects import PULLED, RELEASED, apply_input_effects
 
@@ -48,27 +50,79 @@ def reachable_band(params: BoucWenParams, w: float) -> tuple[float, float]:
 
 def _quiet_start(u: np.ndarray) -> int:
     """Number of leading samples before the input moves by more than 2 % of its span (at least 1)."""
-    span = float(np.nanmax(u) - np.nanmin(u)) if u.size else 0.0
+    return int(_opening(np.ascontiguousarray(u, dtype=np.float64), np.zeros(0), 0.0, 0.0, 0.0, 1.0, FIRST_MAX)[0])
+
+
+@njit(cache=True)
+def _median_of(values, m):
+    """``np.median`` of the first m of ``values`` (sorted in place), m > 0."""
+    s = np.sort(values[:m])
+    h = m // 2
+    return s[h] if m % 2 == 1 else (s[h - 1] + s[h]) / 2.0
+
+
+@njit(cache=True)
+def _opening(u, w, a1, a2, a3, az, first_max):
+    """What ``algebraic_z0`` takes from the log's first samples, in one compiled pass with numpy's arithmetic:
+    (quiet samples k, median of the finite algebraic z over them or NaN, median of the non-NaN warps over
+    them, whether one of those is finite). w may be empty (then only k)."""
+    n = u.shape[0]
+    hi = -np.inf
+    lo = np.inf
+    seen = False
+    for v in u:  # np.nanmax - np.nanmin (NaN when all are NaN)
+        if not math.isnan(v):
+            seen = True
+            if v > hi:
+                hi = v
+            if v < lo:
+                lo = v
+    span = (hi - lo if seen else math.nan) if n else 0.0
+    head = min(n, first_max)
     if span <= 0:
-        return min(u.size, FIRST_MAX)
-    moved = np.abs(u[: FIRST_MAX] - u[0]) > 0.02 * span
-    k = int(np.argmax(moved)) if moved.any() else min(u.size, FIRST_MAX)
-    return max(1, k)
+        k = head
+    else:
+        k = head
+        for j in range(head):
+            if abs(u[j] - u[0]) > 0.02 * span:
+                k = j
+                break
+        k = max(1, k)
+    if w.shape[0] == 0:
+        return k, math.nan, math.nan, False
+    zs = np.empty(k)
+    ws = np.empty(k)
+    mz = 0
+    mw = 0
+    w_finite = False
+    for j in range(k):
+        z = (u[j] - a1 * w[j] * w[j] - a2 * w[j] - a3) / az
+        if math.isfinite(z):
+            zs[mz] = z
+            mz += 1
+        if not math.isnan(w[j]):
+            ws[mw] = w[j]
+            mw += 1
+            w_finite = w_finite or math.isfinite(w[j])
+    z_med = _median_of(zs, mz) if mz else math.nan
+    w_med = _median_of(ws, mw) if mw else math.nan
+    return k, z_med, w_med, w_finite
 
 
 def algebraic_z0(params: BoucWenParams, u, w) -> float:
     """z0 from the first samples alone (median of the algebraic z), clamped to the reachable band.
 
     What the bridge uses at start with one tendon position and one sensor reading."""
-    u = np.asarray(u, dtype=np.float64)
-    w = np.asarray(w, dtype=np.float64)
-    k = _quiet_start(u)
-    z = algebraic_z(params, u[:k], w[:k])
-    z = z[np.isfinite(z)]
-    if z.size == 0:
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    if w.size < min(u.size, FIRST_MAX):
+        raise ValueError(f"{w.size} warp samples for {u.size} input samples")
+    _, z, w_med, w_finite = _opening(u, w if u.size else np.zeros(0), params.a1, params.a2, params.a3,
+                                     params.az, FIRST_MAX)
+    if math.isnan(z):
         return 0.0
-    lo, hi = reachable_band(params, float(np.nanmedian(w[:k])) if np.isfinite(w[:k]).any() else 0.0)
-    return float(np.clip(np.median(z), lo, hi))
+    lo, hi = reachable_band(params, w_med if w_finite else 0.0)
+    return float(np.clip(z, lo, hi))
 
 
 def algebraic_z0_rows(P: np.ndarray, u, w) -> np.ndarray:

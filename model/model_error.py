@@ -31,10 +31,10 @@ linear combination of features of where the hysteresis is::
   a fast bench input needs more).
 
 What the rate and lag terms take from the sample times alone (each lag's
-step factors, the rate's smoothing width) is kept per log (``TimeTerms``), and
-the plays run in one compiled pass: a diagnosis evaluates the correction on
-thousands of paths of one log, and the results are bit for bit those of the
-plain operators.
+step factors, the rate's smoothing width, ``np.gradient``'s weights) is kept
+per log (``TimeTerms``), and the plays and the lags each run in one compiled
+pass, row by row: a diagnosis evaluates the correction on thousands of paths
+of one log, and the results are bit for bit those of the plain operators.
 
 Nested feature sets and a ridge penalty are chosen by blocked cross-validation
 on the bench log, so noise is not learned as structure; the cross-validated
@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbridge.model._jit import njit
-from warpbridge.model.effects import play
+from warpbridge.model.effects import slack_step
 
 _CACHE_LOCK = threading.Lock()  # guards every ErrorModel's input-terms cache
 
@@ -130,11 +130,21 @@ def play_states(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _play_states(x, thresholds):
-    """``play_states`` in one compiled pass over the thresholds."""
-    out = np.empty((x.shape[0], thresholds.shape[0]))
-    for j in range(thresholds.shape[0]):
-        r = thresholds[j]
-        out[:, j] = (x - play(x, 2.0 * r, x[0])) / r
+    """``play_states`` in one compiled pass over the samples, every play stepped at each (row by row, the
+    order the array is stored in); the same arithmetic as ``play(x, 2 r, x[0])`` per threshold."""
+    n = x.shape[0]
+    m = thresholds.shape[0]
+    out = np.empty((n, m))
+    if n == 0:
+        return out
+    ys = np.full(m, x[0])
+    for k in range(n):
+        xk = x[k]
+        for j in range(m):
+            r = thresholds[j]
+            y = slack_step(xk, ys[j], 0.5 * (2.0 * r), 0.0, 0.0, 0.0)
+            ys[j] = y
+            out[k, j] = (xk - y) / r
     return out
 
 
@@ -145,10 +155,14 @@ def _plays(x: np.ndarray, x_span: float) -> np.ndarray:
 @dataclass(frozen=True)
 class TimeTerms:
     """What the rate and lag terms take from the sample times alone (the same for every path of a log):
-    each lag's step factors exp(-dt / tau) and the rate's smoothing width (a median of the steps)."""
+    each lag's step factors exp(-dt / tau), the rate's smoothing width (a median of the steps) and the
+    steps and weights of ``np.gradient`` along the times."""
 
     lag_factors: np.ndarray  # (len(LAG_TIMES_S), n)
     smooth: int
+    steps: np.ndarray  # (n - 1,) np.diff(t)
+    grad_weights: np.ndarray  # (3, n - 2) np.gradient's weights of w[k - 1], w[k], w[k + 1] at uneven steps
+    uniform: bool  # every step the same: np.gradient's uniform branch
 
 
 @njit(cache=True)
@@ -172,12 +186,47 @@ def _lag_columns(w, factors, denom):
     n = w.shape[0]
     m = factors.shape[0]
     out = np.empty((n, m))
-    for j in range(m):
-        y = w[0] if n else 0.0
-        for k in range(n):
+    if n == 0:
+        return out
+    ys = np.full(m, w[0])
+    for k in range(n):  # row by row, the order the array is stored in
+        for j in range(m):
             a = factors[j, k]
-            y = a * y + (1.0 - a) * w[k]
+            y = a * ys[j] + (1.0 - a) * w[k]
+            ys[j] = y
             out[k, j] = (y - w[k]) / denom[j]
+    return out
+
+
+@njit(cache=True)
+def _gradient_weights(steps):
+    """``np.gradient``'s weights of f[k - 1], f[k], f[k + 1] at each inner sample for uneven steps (its
+    second-order central difference, the same operations)."""
+    n = max(steps.shape[0] - 1, 0)
+    out = np.empty((3, n))
+    for k in range(n):
+        dx1 = steps[k]
+        dx2 = steps[k + 1]
+        out[0, k] = -(dx2) / (dx1 * (dx1 + dx2))
+        out[1, k] = (dx2 - dx1) / (dx1 * dx2)
+        out[2, k] = dx1 / (dx2 * (dx1 + dx2))
+    return out
+
+
+@njit(cache=True)
+def _gradient(f, steps, weights, uniform):
+    """``np.gradient(f, t)`` (first-order at the ends) from t's steps and ``_gradient_weights``, bit for bit."""
+    n = f.shape[0]
+    out = np.empty(n)
+    if uniform:
+        h2 = 2.0 * steps[0]
+        for k in range(1, n - 1):
+            out[k] = (f[k + 1] - f[k - 1]) / h2
+    else:
+        for k in range(1, n - 1):
+            out[k] = weights[0, k - 1] * f[k - 1] + weights[1, k - 1] * f[k] + weights[2, k - 1] * f[k + 1]
+    out[0] = (f[1] - f[0]) / steps[0]
+    out[n - 1] = (f[n - 1] - f[n - 2]) / steps[n - 2]
     return out
 
 
@@ -185,8 +234,10 @@ def time_terms(t: np.ndarray) -> TimeTerms:
     """``TimeTerms`` of the sample times t (s)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     factors = _lag_factors(t, np.asarray(LAG_TIMES_S, dtype=np.float64))
-    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    return TimeTerms(factors, max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9)))))
+    steps = np.diff(t)
+    dt = float(np.median(steps)) if t.size > 1 else 1.0
+    return TimeTerms(factors, max(1, int(round(RATE_SMOOTH_S / max(dt, 1e-9)))), steps,
+                     _gradient_weights(steps), bool(steps.size and np.all(steps == steps[0])))
 
 
 def lag_states(t: np.ndarray, w: np.ndarray, rate_scale: float, terms: TimeTerms | None = None) -> np.ndarray:
@@ -265,8 +316,13 @@ def _correction(w, v, q, g, theta, w_center, w_scale, nsets, dirs, et, em, legs,
 
 
 def _smooth_rate(t: np.ndarray, w: np.ndarray, terms: TimeTerms | None = None) -> np.ndarray:
-    r = np.gradient(w, t) if t.size > 2 else np.zeros_like(w)
-    k = (terms if terms is not None else time_terms(t)).smooth
+    """dw/dt (``np.gradient``, bit for bit) smoothed over ``RATE_SMOOTH_S``."""
+    tt = terms if terms is not None else time_terms(t)
+    if tt.lag_factors.shape[1] != np.size(w):
+        raise ValueError(f"{np.size(w)} warp samples for {tt.lag_factors.shape[1]} sample times")
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    r = _gradient(w, tt.steps, tt.grad_weights, tt.uniform) if w.size > 2 else np.zeros_like(w)
+    k = tt.smooth
     if k > 1:
         r = np.convolve(r, np.ones(k) / k, mode="same")
     return r
@@ -297,6 +353,7 @@ class ErrorModel:
     samples: int = 0
     extra: dict = field(default_factory=dict)
     _input_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _band_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
     _time_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
@@ -331,20 +388,20 @@ class ErrorModel:
         """``input_terms`` of x for this model's sets with the travel scale stretched by the band (a friction
         change scales the loop self-similarly: the turn after a reversal takes ``band`` times the travel).
         Those on the bench's travel scale (band 1) are kept for the last few paths: a fit that moves only the
-        core runs the same x thousands of times, while a friction fit tries a new band at every run (kept,
-        those would only push the reused paths out)."""
-        if band != 1.0:
-            return input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
-        key = hash(x.tobytes())
+        core runs the same x thousands of times. Those at another band are kept apart, for the last two: a
+        friction fit tries a new band at nearly every run (kept with the others, those would push the reused
+        paths out), but a fit that holds a band while it moves the rest asks for the same terms again."""
+        pool, size = (self._input_cache, 4) if band == 1.0 else (self._band_cache, 2)
+        key = (hash(x.tobytes()), band)
         with _CACHE_LOCK:  # diagnose's candidate fits may share this model from several threads
-            hit = self._input_cache.get(key)
+            hit = pool.get(key)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
-        terms = input_terms(x, self.x_span, plays=len(self.sets) >= 6)
+        terms = input_terms(x, self.x_span * band, plays=len(self.sets) >= 6)
         with _CACHE_LOCK:
-            if len(self._input_cache) >= 4:
-                self._input_cache.pop(next(iter(self._input_cache)))
-            self._input_cache[key] = (x.copy(), terms)
+            if len(pool) >= size:
+                pool.pop(next(iter(pool)))
+            pool[key] = (x.copy(), terms)
         return terms
 
     def _time_terms(self, t: np.ndarray) -> TimeTerms:

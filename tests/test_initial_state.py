@@ -22,6 +22,47 @@ def test_the_algebraic_state_is_clamped_to_what_z_can_reach():
     assert z == pytest.approx(max(hi, lo))
 
 
+def _numpy_algebraic_z0(p, u, w):
+    """algebraic_z0 written with numpy calls: the quiet start (input within 2 % of its span of the first
+    sample, at most 25 samples), the median finite algebraic z, clamped to the band at the median warp."""
+    span = float(np.nanmax(u) - np.nanmin(u)) if u.size else 0.0
+    if span <= 0:
+        k = min(u.size, 25)
+    else:
+        moved = np.abs(u[:25] - u[0]) > 0.02 * span
+        k = max(1, int(np.argmax(moved)) if moved.any() else min(u.size, 25))
+    z = (u[:k] - p.a1 * w[:k] * w[:k] - p.a2 * w[:k] - p.a3) / p.az
+    z = z[np.isfinite(z)]
+    if z.size == 0:
+        return 0.0
+    hi, lo = p.z_saturation(1.0 if (float(np.nanmedian(w[:k])) if np.isfinite(w[:k]).any() else 0.0) >= 0 else -1.0)
+    return float(np.clip(np.median(z), min(lo, hi), max(lo, hi)))
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_the_algebraic_state_is_bit_for_bit_the_numpy_one_on_ragged_openings():
+    rng = np.random.default_rng(3)
+    base = BoucWenParams.paper()
+    for trial in range(400):
+        n = int(rng.choice([1, 2, 3, 24, 25, 26, 400]))
+        u = np.cumsum(rng.normal(0.0, rng.choice([0.001, 0.05, 1.0]), n)) + rng.normal(0.0, 5.0)
+        if rng.random() < 0.3:
+            u[: int(rng.integers(0, n + 1))] = u[0]  # a held start of any length
+        w = rng.normal(0.0, 10.0, n)
+        for arr, what, chance in ((w, np.nan, 0.2), (u, np.nan, 0.1), (w, np.inf, 0.05)):
+            if rng.random() < chance:
+                arr[rng.integers(0, n)] = what
+        p = BoucWenParams(a1=rng.normal(0.0, 0.01), a2=rng.normal(1.0, 0.3), a3=rng.normal(0.0, 1.0),
+                          az=float(rng.choice([1.0, 0.5, 2.3])), A=base.A, n=base.n, b=base.b)
+        got, want = algebraic_z0(p, u, w), _numpy_algebraic_z0(p, u, w)
+        assert got == want or (np.isnan(got) and np.isnan(want)), (trial, got, want)
+
+
+def test_the_algebraic_state_of_a_warp_shorter_than_the_opening_is_an_error():
+    with pytest.raises(ValueError, match="warp samples"):
+        algebraic_z0(BoucWenParams.paper(), np.zeros(10), np.zeros(3))
+
+
 @pytest.fixture(scope="module")
 def loaded_log():
     """A plant run cut after its start: the log begins with the tendon loaded (true z known)."""

@@ -214,6 +214,24 @@ def test_the_input_terms_reused_across_paths_give_each_path_its_own_correction()
             np.testing.assert_allclose(em.correction(t, x, wk), expect, rtol=0, atol=1e-10)
 
 
+def test_the_terms_kept_at_a_held_band_are_those_of_that_band_and_path():
+    """The input terms kept for bands other than 1 are used only for the same band and the same path; a path
+    changed in place after it was kept is computed afresh."""
+    t, u, w = _log(seed=12)
+    span = float(np.ptp(u))
+    X = design(t, u, w, 6.0, 4.0, span, 25.0, FEATURE_SETS)
+    em = ErrorModel(6.0, 4.0, span, 25.0, FEATURE_SETS, np.random.default_rng(13).standard_normal(X.shape[1]))
+    fresh = ErrorModel.from_dict(em.to_dict())
+    x = u.copy()
+    for band in (1.3, 1.3, 0.8, 1.3, 1.0, 0.8):
+        plain = ErrorModel.from_dict(em.to_dict())  # nothing kept
+        assert np.array_equal(em.correction(t, x, w, band), plain.correction(t, x, w, band))
+    kept = em.correction(t, x, w, 1.3)
+    x[len(x) // 3:] *= 0.7  # the caller's path changed in place
+    assert np.array_equal(em.correction(t, x, w, 1.3), fresh.correction(t, x, w, 1.3))
+    assert not np.array_equal(em.correction(t, x, w, 1.3), kept)
+
+
 LOOP_SHAPE_SETS = ("branch", "transition", "memory", "play")  # a misfit of the band; level, rate, lag are not
 
 
