@@ -66,28 +66,20 @@ def _opening(u, w, a1, a2, a3, az, first_max):
     """What ``algebraic_z0`` takes from the log's first samples, in one compiled pass with numpy's arithmetic:
     (quiet samples k, median of the finite algebraic z over them or NaN, median of the non-NaN warps over
     them, whether one of those is finite). w may be empty (then only k)."""
-    n = u.shape[0]
     hi = -np.inf
     lo = np.inf
-    seen = False
-    for v in u:  # np.nanmax - np.nanmin (NaN when all are NaN)
-        if not math.isnan(v):
-            seen = True
-            if v > hi:
-                hi = v
-            if v < lo:
-                lo = v
-    span = (hi - lo if seen else math.nan) if n else 0.0
-    head = min(n, first_max)
-    if span <= 0:
-        k = head
-    else:
-        k = head
-        for j in range(head):
+    for v in u:  # np.nanmax - np.nanmin; -inf with no number at all, which counts as no span, as NaN did
+        if v > hi:
+            hi = v
+        if v < lo:
+            lo = v
+    span = hi - lo
+    k = min(u.shape[0], first_max)
+    if span > 0:
+        for j in range(k):
             if abs(u[j] - u[0]) > 0.02 * span:
-                k = j
+                k = max(1, j)
                 break
-        k = max(1, k)
     if w.shape[0] == 0:
         return k, math.nan, math.nan, False
     zs = np.empty(k)
@@ -117,8 +109,7 @@ def algebraic_z0(params: BoucWenParams, u, w) -> float:
     w = np.ascontiguousarray(w, dtype=np.float64)
     if w.size < min(u.size, FIRST_MAX):
         raise ValueError(f"{w.size} warp samples for {u.size} input samples")
-    _, z, w_med, w_finite = _opening(u, w if u.size else np.zeros(0), params.a1, params.a2, params.a3,
-                                     params.az, FIRST_MAX)
+    _, z, w_med, w_finite = _opening(u, w, params.a1, params.a2, params.a3, params.az, FIRST_MAX)
     if math.isnan(z):
         return 0.0
     lo, hi = reachable_band(params, w_med if w_finite else 0.0)
