@@ -1,7 +1,7 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
-                                                        trial-reach|blow-up|passes]
+                                                        trial-reach|blow-up|passes|kept-runs]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
@@ -34,15 +34,20 @@ by row (as shipped: the play and lag states stepped together per sample, ``np.gr
 two paths, for fits that hold a band while they move the rest) against the code before (one column after another,
 ``np.gradient`` and numpy calls at every evaluation, those input terms computed afresh), both on one thread; the
 same arithmetic, so the reports must be identical.
+``--compare kept-runs``: the core runs of the fits' starting grids kept for every thread, up to
+``diag_fit.GRID_CACHE_BYTES``, and each search's end kept by where it started (as shipped: a later fit walking the
+same grid through the same cores reuses them, and a search from the same effects over the same boxes takes the
+first one's end) against only each thread's last few runs kept (the code before), both on ``--threads`` threads
+(the command's default on two cores); the reports must be identical.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at ``--seed``,
 the case numbers given, or each ``--case`` family/seed/plant/case; 10-12 are its pairs, usually the slowest; all
 six families unless ``--families``), the bench models from its cache (identified there when missing). Each case
 runs plain ``diagnose`` through ``bridge.cli.main`` once per variant and repeat, the variants alternating in order,
 one process at a time. The report must be the same either way (checked: the verdict, every fitted parameter and
-every candidate's figures; only the count of core runs may differ between thread counts, each thread caching
-its own); the table gives each case's times and their ratio, then the median ratio and the slowest time per
-variant.
+every candidate's figures; only the count of core runs may differ, with the thread count or what is kept); the
+table gives each case's times, their ratio and each variant's count of core runs (the report's
+``model_evaluations``: a kept run is not counted again), then the median ratios and the slowest time per variant.
 """
 
 from __future__ import annotations
@@ -124,6 +129,12 @@ def _uncapped_opening(self, p, x: np.ndarray) -> float:
 
 
 _SHIPPED_OPENING = Problem._opening_cost
+_SHIPPED_SEARCH = Problem._search
+
+
+def _unkept_search(self, boxes, s0, build, cost, lin, max_evals):
+    """The baseline of ``--compare kept-runs``: every search run afresh."""
+    return self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
 
 _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smooth_rate,
                         "play_states": _old_play_states}
@@ -238,11 +249,15 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline."""
     if compare in KERNEL_BASELINES:
         seconds = kernel_variant_diagnose(field_csv, model, out, "" if new else KERNEL_BASELINES[compare], cache)
-        return seconds, _strip(json.loads(out.read_text()))
+        return seconds, json.loads(out.read_text())
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
     shipped_passes = {key: getattr(*key) for key in _PASSES_BASELINE}
-    jobs = threads if compare == "threads" and new else 1
+    jobs = threads if (compare == "threads" and new) or compare == "kept-runs" else 1
+    grid_bytes = diag_fit.GRID_CACHE_BYTES
+    if compare == "kept-runs" and not new:
+        diag_fit.GRID_CACHE_BYTES = 0
+        Problem._search = _unkept_search
     if compare == "input-terms" and not new:
         model_error.ErrorModel._input_terms = _recomputed
     if compare == "band-travel" and not new:
@@ -262,6 +277,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         seconds = time.perf_counter() - t0
     finally:
         model_error.ErrorModel._input_terms = cached
+        diag_fit.GRID_CACHE_BYTES = grid_bytes
+        Problem._search = _SHIPPED_SEARCH
         Problem._opening_cost = _SHIPPED_OPENING
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
@@ -269,13 +286,13 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
             setattr(module, name, fn)
     if code != 0:
         raise RuntimeError(f"diagnose failed: {text}")
-    return seconds, _strip(json.loads(out.read_text()))
+    return seconds, json.loads(out.read_text())
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
-                                              "trial-reach", "blow-up", "passes"),
+                                              "trial-reach", "blow-up", "passes", "kept-runs"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -286,8 +303,10 @@ def main(argv: list[str] | None = None) -> int:
                          "unbounded; blow-up: a march bound to pass a blow-up of the state ended at once against "
                          "marched to the cap; passes: the per-evaluation terms (plays, lags, rate, start state) "
                          "in row-order compiled passes, and the input terms at a held band kept, against the code "
-                         "before")
-    ap.add_argument("--threads", type=int, default=2, help="threads of the shipped variant (--compare threads)")
+                         "before; kept-runs: the starting grids' core runs kept for every thread and each search's "
+                         "end by its start, against each thread's last few runs only, on --threads threads")
+    ap.add_argument("--threads", type=int, default=2,
+                    help="threads of the shipped variant (--compare threads; of both with kept-runs)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")
@@ -304,7 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
-                           "blow-up": ("to the cap", "ended"), "passes": ("before", "passes")}[a.compare]
+                           "blow-up": ("to the cap", "ended"), "passes": ("before", "passes"),
+                           "kept-runs": ("per thread", "kept")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -319,7 +339,9 @@ def main(argv: list[str] | None = None) -> int:
                        "(shipped) vs marched to the cap on |z| (baseline), one thread, each in its own process",
             "passes": "the plays, lags, rate and start state of each evaluation in row-order compiled passes, "
                       "the input terms at a held band kept (shipped) vs column passes, np.gradient and numpy "
-                      "calls, those terms recomputed (baseline), one thread"
+                      "calls, those terms recomputed (baseline), one thread",
+            "kept-runs": "the starting grids' core runs kept for every thread, each search's end by its start "
+                         f"(shipped) vs each thread's last few runs only (baseline), {a.threads} threads",
             }[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
@@ -332,8 +354,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"diagnose, 60 s at 500 Hz: {what}; {which}, "
           f"{a.repeats} repeat(s); load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
           flush=True)
-    print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  {same_what}",
-          flush=True)
+    print(f"{'case':<28}{'truth':<26}{base_name + ' s':>13}{new_name + ' s':>13}{'ratio':>7}  {same_what:<12}"
+          f"core runs", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for n, (family, seed, index, k) in enumerate(todo):
@@ -350,16 +372,19 @@ def main(argv: list[str] | None = None) -> int:
                                              a.cache)
                        for v in order}
                 (tb, rb), (tr, rr) = got[False], got[True]
-                same = rb["verdict"] == rr["verdict"] if by_verdict else rb == rr
-                rows.append((tb, tr, same))
+                same = rb["verdict"] == rr["verdict"] if by_verdict else _strip(rb) == _strip(rr)
+                runs = (rb["model_evaluations"], rr["model_evaluations"])
+                rows.append((tb, tr, same, runs))
                 print(f"{plant.name + f'-c{k}':<28}{'+'.join(names):<26}{tb:>13.1f}{tr:>13.1f}{tr / tb:>7.2f}  "
-                      f"{'yes' if same else 'NO'}", flush=True)
-    ratios = [tr / tb for tb, tr, _ in rows]
+                      f"{'yes' if same else 'NO':<12}{runs[0]:>7d} -> {runs[1]}", flush=True)
+    ratios = [tr / tb for tb, tr, _, _ in rows]
+    run_ratios = [b[1] / b[0] for *_, b in rows if b[0]]
     print(f"\n{len(rows)} runs: time ratio {new_name} / {base_name} median {statistics.median(ratios):.2f} "
           f"(range {min(ratios):.2f}-{max(ratios):.2f}); median: {base_name} "
           f"{statistics.median(r[0] for r in rows):.1f} s, {new_name} {statistics.median(r[1] for r in rows):.1f} s; "
           f"slowest: {base_name} {max(r[0] for r in rows):.1f} s, {new_name} {max(r[1] for r in rows):.1f} s; "
-          f"{'verdicts' if by_verdict else 'reports'} identical {sum(r[2] for r in rows)}/{len(rows)}; "
+          f"{'verdicts' if by_verdict else 'reports'} identical {sum(r[2] for r in rows)}/{len(rows)}; core runs "
+          f"ratio median {statistics.median(run_ratios):.2f} (range {min(run_ratios):.2f}-{max(run_ratios):.2f}); "
           f"load average at the end {os.getloadavg()[0]:.1f}")
     return 0 if by_verdict or all(r[2] for r in rows) else 1
 

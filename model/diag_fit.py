@@ -34,6 +34,15 @@ on the log (a wing the model does not carry over to), a candidate may leave
 it as often as the nominal does, and output-side candidates reuse the
 nominal's own run, which is kept for the whole search (uncapped, as ``predict``
 runs it, if it must be).
+
+Each thread keeps its last few core runs. The runs of the starting grids are
+also kept for all threads, up to ``GRID_CACHE_BYTES``: a later fit of the same
+effect beside an output-side one (a sensor lag, an aero load) or without it
+(the backward check) walks the same grid through the same cores. And a search
+that starts from the same effects over the same boxes as an earlier one takes
+its end (the backward check's fit without an output-side effect can retrace
+the first round's). Results are the same; on a slow capstan-sheath pair the
+core runs went from 5 087 to 4 146.
 """
 
 from __future__ import annotations
@@ -78,6 +87,7 @@ from warpbridge.model.model_error import ErrorModel
 log = logging.getLogger(__name__)
 
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
+GRID_CACHE_BYTES = 128 * 2 ** 20  # the starting grids' core runs kept for every thread (``Problem.core``)
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
 INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "pretension_loop",
@@ -366,6 +376,10 @@ class Problem:
         self._local = threading.local()  # per thread: the core cache and its evaluation count (``fit``)
         self._count_lock = threading.Lock()
         self._evaluations = 0
+        self._grid_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()  # every thread's, under ``_grid_lock``
+        self._grid_lock = threading.Lock()
+        self._grid_slots = GRID_CACHE_BYTES // (8 * self.t.size)
+        self._searches: dict[tuple, np.ndarray] = {}  # each search's end by where it started (``_search``)
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
         self._opening = min(self.t.size, OPENING_MAX)
         self._noise = noise_floor(self.w)
@@ -435,6 +449,13 @@ class Problem:
         if hit is not None:
             self._core.move_to_end(key)
             return hit
+        with self._grid_lock:
+            hit = self._grid_cache.get(key)
+            if hit is not None:
+                self._grid_cache.move_to_end(key)
+        if hit is not None:
+            self._keep(key, hit)
+            return hit
         p = self._core_params(eff)
         x = self.input_path(eff, p)
         self._counted()
@@ -444,10 +465,19 @@ class Problem:
         else:
             fill_along_travel(x, run[1], run[2], w)
         w = self._corrected(x, w, eff)
+        self._keep(key, w)
+        if self._grid_slots and getattr(self._local, "on_grid", False):
+            with self._grid_lock:
+                self._grid_cache[key] = w
+                if len(self._grid_cache) > self._grid_slots:
+                    self._grid_cache.popitem(last=False)
+        return w
+
+    def _keep(self, key: tuple, w: np.ndarray) -> None:
+        """Keep ``w`` among this thread's last few core runs."""
         self._core[key] = w
         if len(self._core) > 8:
             self._core.popitem(last=False)
-        return w
 
     def input_path(self, eff: Effects, p: BoucWenParams) -> np.ndarray:
         """The tendon travel into the core for ``eff``; a play starts on its releasing edge when that core run,
@@ -604,13 +634,24 @@ class Problem:
         s0 = np.array([b.coord(getattr(start, b.field)) for b in boxes])
         if boxes:
             s0 = self._grid_start(boxes, s0, cost, grid_for, movers)
-            if len(boxes) == 1:
-                s0 = self._brent(cost, s0)
-            else:
-                s0 = self._nelder_mead(cost, s0, max_evals)
+            s0 = self._search(boxes, s0, build, cost, lin, max_evals)
         eff, wp = self.solve_linear(build(s0), lin)
         return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), sum(params_of.values()),
                    0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes, params_of)
+
+    def _search(self, boxes: list[Box], s0: np.ndarray, build, cost, lin, max_evals: int) -> np.ndarray:
+        """Bounded Brent (one box) or Nelder-Mead (more) from ``s0``. A search that starts from the same effects
+        over the same boxes has the same cost everywhere and takes the same path: its end is kept (the backward
+        check's fit without an output-side effect retraces the first round's fit of the one left)."""
+        key = (repr(build(s0)), repr(boxes), lin, max_evals)
+        with self._grid_lock:
+            hit = self._searches.get(key)
+        if hit is not None:
+            return hit.copy()
+        s = self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
+        with self._grid_lock:
+            self._searches[key] = s.copy()
+        return s
 
     def _grid_start(self, boxes: list[Box], s0: np.ndarray, cost, grid_name: str, movers) -> np.ndarray:
         """The best point of a starting grid over the effect ``grid_name``'s parameters (13 points for one,
@@ -626,15 +667,19 @@ class Problem:
         else:
             g = np.linspace(0.0, 1.0, 7)
             pts = [np.array([a, b]) for a in g for b in g[1:-1]]
-        best, best_c = s0, cost(s0)
-        for p in pts:
-            s = s0.copy()
-            s[idx] = p
-            for i, j in tied:
-                s[i] = s[j]
-            c = cost(s)
-            if c < best_c:
-                best, best_c = s, c
+        self._local.on_grid = True  # these cores are kept for every thread (``core``)
+        try:
+            best, best_c = s0, cost(s0)
+            for p in pts:
+                s = s0.copy()
+                s[idx] = p
+                for i, j in tied:
+                    s[i] = s[j]
+                c = cost(s)
+                if c < best_c:
+                    best, best_c = s, c
+        finally:
+            self._local.on_grid = False
         return best
 
     @staticmethod

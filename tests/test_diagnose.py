@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,6 +14,7 @@ from helpers import spread_friction
 from warpbridge.bridge.cli import main as cli
 from warpbridge.bridge.commands.logfile import write_csv_atomic
 from warpbridge.bridge.commands.modelio import load_model, save_model
+from warpbridge.model import diag_fit
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain
@@ -111,6 +113,64 @@ def test_the_compressed_path_predicts_what_every_sample_does_to_far_below_the_no
     fast = Problem(t, u, w, v, P, Effects()).predict(eff)
     assert np.max(np.abs(fast - exact)) < 0.1 * NOISE
     assert np.sqrt(np.mean((fast - exact) ** 2)) < 0.01 * NOISE
+
+
+def _grid_walked_twice(t, u, w, v):
+    """A friction fit, then the friction fit a second round makes beside a fitted sensor lag (an output-side
+    effect: the same cores along the same grid), on another thread: (first fit, second fit, the problem)."""
+    prob = Problem(t, u, w, v, P, Effects())
+    first = prob.fit(("friction",))
+    lag = prob.fit(("sensor_lag",))
+    with ThreadPoolExecutor(1) as other:
+        second = other.submit(prob.fit, ("sensor_lag", "friction"), lag.effects, ("friction",), 120,
+                              "friction").result()
+    return first, second, prob
+
+
+def test_a_grid_walked_again_on_another_thread_reuses_its_cores_and_changes_nothing(monkeypatch):
+    t, u, w, v = make_log(Effects(friction_scale=1.3, friction_pivot=0.5, sensor_tau_s=0.03), seed=5,
+                          duration=10.0)
+    first, shared, _ = _grid_walked_twice(t, u, w, v)
+    monkeypatch.setattr(diag_fit, "GRID_CACHE_BYTES", 0)  # each thread's last few runs only
+    first_alone, alone, _ = _grid_walked_twice(t, u, w, v)
+    assert np.array_equal(first.w_pred, first_alone.w_pred) and first.effects == first_alone.effects
+    assert np.array_equal(shared.w_pred, alone.w_pred) and shared.effects == alone.effects
+    assert shared.train_mse == alone.train_mse and shared.score_mse == alone.score_mse
+    # the second grid (13 points a form, at least) came from the first one's runs
+    assert shared.evaluations + 13 <= alone.evaluations, (shared.evaluations, alone.evaluations)
+
+
+def test_the_kept_grid_runs_stay_within_their_budget(monkeypatch):
+    t, u, w, v = make_log(Effects(friction_scale=1.3, friction_pivot=0.5), seed=5, duration=5.0)
+    monkeypatch.setattr(diag_fit, "GRID_CACHE_BYTES", 3 * 8 * t.size)  # three runs of this log
+    first, second, prob = _grid_walked_twice(t, u, w, v)
+    assert len(prob._grid_cache) == 3
+    assert all(run.size == t.size for run in prob._grid_cache.values())
+
+
+
+def _searched_twice(t, u, w, v):
+    """The same fit twice, the second on another thread: (first, second)."""
+    prob = Problem(t, u, w, v, P, Effects())
+    first = prob.fit(("friction",))
+    with ThreadPoolExecutor(1) as other:
+        return first, other.submit(prob.fit, ("friction",)).result()
+
+
+def test_a_search_from_where_another_started_ends_where_it_ended(monkeypatch):
+    t, u, w, v = make_log(Effects(friction_scale=1.3, friction_pivot=0.5), seed=5, duration=5.0)
+    first, second = _searched_twice(t, u, w, v)
+    assert np.array_equal(second.w_pred, first.w_pred) and second.effects == first.effects
+    # each form's search is taken whole: what is left is each form's core at its end (another thread's)
+    assert second.evaluations <= 2, second.evaluations
+
+    def afresh(self, boxes, s0, build, cost, lin, max_evals):
+        return self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
+
+    monkeypatch.setattr(Problem, "_search", afresh)
+    first_afresh, second_afresh = _searched_twice(t, u, w, v)
+    assert second_afresh.effects == first.effects and np.array_equal(second_afresh.w_pred, first.w_pred)
+    assert second_afresh.evaluations > 20 * max(second.evaluations, 1), second_afresh.evaluations
 
 
 def test_split_alternates_blocks_and_scores_the_end():
