@@ -136,6 +136,7 @@ def _unkept_search(self, boxes, s0, build, cost, lin, max_evals):
     """The baseline of ``--compare kept-runs``: every search run afresh."""
     return self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
 
+
 _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smooth_rate,
                         "play_states": _old_play_states}
 

@@ -143,10 +143,9 @@ def test_a_grid_walked_again_on_another_thread_reuses_its_cores_and_changes_noth
 def test_the_kept_grid_runs_stay_within_their_budget(monkeypatch):
     t, u, w, v = make_log(Effects(friction_scale=1.3, friction_pivot=0.5), seed=5, duration=5.0)
     monkeypatch.setattr(diag_fit, "GRID_CACHE_BYTES", 3 * 8 * t.size)  # three runs of this log
-    first, second, prob = _grid_walked_twice(t, u, w, v)
+    *_, prob = _grid_walked_twice(t, u, w, v)
     assert len(prob._grid_cache) == 3
     assert all(run.size == t.size for run in prob._grid_cache.values())
-
 
 
 def _searched_twice(t, u, w, v):
@@ -168,7 +167,7 @@ def test_a_search_from_where_another_started_ends_where_it_ended(monkeypatch):
         return self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
 
     monkeypatch.setattr(Problem, "_search", afresh)
-    first_afresh, second_afresh = _searched_twice(t, u, w, v)
+    _, second_afresh = _searched_twice(t, u, w, v)
     assert second_afresh.effects == first.effects and np.array_equal(second_afresh.w_pred, first.w_pred)
     assert second_afresh.evaluations > 20 * max(second.evaluations, 1), second_afresh.evaluations
 
