@@ -376,8 +376,8 @@ class Problem:
         self._local = threading.local()  # per thread: the core cache and its evaluation count (``fit``)
         self._count_lock = threading.Lock()
         self._evaluations = 0
-        self._grid_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()  # every thread's, under ``_grid_lock``
-        self._grid_lock = threading.Lock()
+        self._grid_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()  # every thread's grid runs
+        self._kept_lock = threading.Lock()  # guards what is kept for every thread: grid runs, search ends
         self._grid_slots = GRID_CACHE_BYTES // (8 * self.t.size)
         self._searches: dict[tuple, np.ndarray] = {}  # each search's end by where it started (``_search``)
         self.has_airspeed = self.q is not None and float(np.max(self.q)) > 0.0
@@ -449,7 +449,7 @@ class Problem:
         if hit is not None:
             self._core.move_to_end(key)
             return hit
-        with self._grid_lock:
+        with self._kept_lock:
             hit = self._grid_cache.get(key)
             if hit is not None:
                 self._grid_cache.move_to_end(key)
@@ -467,7 +467,7 @@ class Problem:
         w = self._corrected(x, w, eff)
         self._keep(key, w)
         if self._grid_slots and getattr(self._local, "on_grid", False):
-            with self._grid_lock:
+            with self._kept_lock:
                 self._grid_cache[key] = w
                 if len(self._grid_cache) > self._grid_slots:
                     self._grid_cache.popitem(last=False)
@@ -644,12 +644,12 @@ class Problem:
         over the same boxes has the same cost everywhere and takes the same path: its end is kept (the backward
         check's fit without an output-side effect retraces the first round's fit of the one left)."""
         key = (repr(build(s0)), repr(boxes), lin, max_evals)
-        with self._grid_lock:
+        with self._kept_lock:
             hit = self._searches.get(key)
         if hit is not None:
             return hit.copy()
         s = self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
-        with self._grid_lock:
+        with self._kept_lock:
             self._searches[key] = s.copy()
         return s
 
