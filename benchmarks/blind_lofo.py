@@ -471,3 +471,96 @@ def aero_split_table(results: list[dict], folds: dict) -> str:
         for x in r.get("kept_beside_aero_load", []):
             lines.append(row(r, r["verdict"], x, "kept (shipped default)"))
     return "\n".join(lines) if len(lines) > 1 else "  none"
+
+
+# ---- two runs of the same cases (``blind_compare.py``): another code's results against this one's ----------------
+
+def case_id(r: dict) -> tuple:
+    return r["family"], r["seed"], r["plant_index"], r["case"]
+
+
+def correct_decisions(r: dict) -> int:
+    """How many decisions of the grid name the case's truth exactly."""
+    return sum(sorted(v["verdict"]) == r["truth"] for v in r["by_decision"].values())
+
+
+def matched(before: list[dict], after: list[dict]) -> list[tuple[dict, dict]]:
+    """(before, after) of every case in both runs, in the order of ``after``."""
+    old = {case_id(r): r for r in before}
+    return [(old[case_id(r)], r) for r in after if case_id(r) in old]
+
+
+def _figures(results: list[dict], folds: dict, default: str) -> dict:
+    """The held-out and shipped-default counts, gap closed and correct decisions of one run."""
+    held = summed_rates(folds.values())
+    closed = [c for dk, rs in folds.values() for r in rs
+              if len(r["truth"]) == 1 and (c := closed_at(r, dk)) is not None]
+    dflt = rates(results, default)
+    return {"held": held, "closed": closed, "default": dflt,
+            "decisions": sum(correct_decisions(r) for r in results),
+            "grid": sum(len(r["by_decision"]) for r in results)}
+
+
+def _gap_text(closed: list[float]) -> str:
+    return f"{min(closed):.0%} / {np.median(closed):.0%}" if closed else "-"
+
+
+def comparison_table(before: list[dict], after: list[dict], default: str, label_before: str = "before",
+                     label_after: str = "after", pool_before: list[dict] | None = None,
+                     pool_after: list[dict] | None = None) -> str:
+    """Two runs on the same cases: the held-out figures of each (its own folds' choices), the shipped default's,
+    the grid's correct decisions, per family, then every case whose verdict changed (under the default, or under
+    its fold's decision in either run) and every case whose count of correct decisions moved."""
+    pairs = matched(before, after)
+    b = [p[0] for p in pairs]
+    a = [p[1] for p in pairs]
+    if not pairs:
+        return "no case in both runs"
+    fb, fa = lofo(b, default, pool_before), lofo(a, default, pool_after)
+    xb, xa = _figures(b, fb, default), _figures(a, fa, default)
+    lines = [f"{len(pairs)} cases in both ({len(before) - len(pairs)} only {label_before}, "
+             f"{len(after) - len(pairs)} only {label_after})", "",
+             f"{'':<44} {label_before:>16} {label_after:>16}"]
+
+    def row(name: str, fn) -> None:
+        lines.append(f"{name:<44} {fn(xb):>16} {fn(xa):>16}")
+
+    row("held out: singles named exactly", lambda x: _pct(x["held"]["single_ok"], x["held"]["singles"]))
+    row("held out: pairs named exactly", lambda x: _pct(x["held"]["pair_ok"], x["held"]["pairs"]))
+    row("held out: false alarms", lambda x: _pct(x["held"]["false_alarms"], x["held"]["nones"]))
+    row("held out: check-log gap closed, min / median", lambda x: _gap_text(x["closed"]))
+    row("shipped default: singles", lambda x: _pct(x["default"]["single_ok"], x["default"]["singles"]))
+    row("shipped default: pairs", lambda x: _pct(x["default"]["pair_ok"], x["default"]["pairs"]))
+    row("shipped default: false alarms", lambda x: _pct(x["default"]["false_alarms"], x["default"]["nones"]))
+    row("correct decisions over the grid", lambda x: f"{x['decisions']}/{x['grid']}")
+    lines += ["", f"{'per family (held out)':<22} {'singles':>15} {'pairs':>13} {'false alarms':>14}   decision "
+                  f"chosen on the others ({label_before} -> {label_after})"]
+    for fam in sorted(fa):
+        rb, ra = rates(fb[fam][1], fb[fam][0]), rates(fa[fam][1], fa[fam][0])
+        cell = [f"{rb[k]}->{ra[k]}/{ra[n]}" for k, n in (("single_ok", "singles"), ("pair_ok", "pairs"),
+                                                          ("false_alarms", "nones"))]
+        dec = describe_decision(fb[fam][0])
+        dec += "" if fa[fam][0] == fb[fam][0] else f" -> {describe_decision(fa[fam][0])}"
+        lines.append(f"{fam:<22} {cell[0]:>15} {cell[1]:>13} {cell[2]:>14}   {dec}")
+    lines += ["", "verdicts changed (shipped default; held out: each run's fold decision), check-log gap closed "
+                  "under the default:"]
+    changed = []
+    for r0, r1 in pairs:
+        d0, d1 = verdict_at(r0, default), verdict_at(r1, default)
+        h0, h1 = verdict_at(r0, fb[r0["family"]][0]), verdict_at(r1, fa[r1["family"]][0])
+        if d0 == d1 and h0 == h1:
+            continue
+        c0, c1 = closed_at(r0, default), closed_at(r1, default)
+        gap = "" if c0 is None or c1 is None else f"; closed {c0:.0%} -> {c1:.0%}"
+        changed.append(f"  {r1['plant']:<24} c{r1['case']:<3} truth {'+'.join(r1['truth']) or '[]':<22} default "
+                       f"{'+'.join(d0) or '[]'} -> {'+'.join(d1) or '[]'}; held out {'+'.join(h0) or '[]'} -> "
+                       f"{'+'.join(h1) or '[]'}{gap}")
+    lines += changed or ["  none"]
+    moved = [(correct_decisions(r1) - correct_decisions(r0), r0, r1) for r0, r1 in pairs]
+    moved = sorted((m for m in moved if m[0]), key=lambda m: (-abs(m[0]), case_id(m[2])))
+    lines += ["", f"correct decisions moved ({len(moved)} cases; gained {sum(m[0] for m in moved if m[0] > 0)}, "
+                  f"lost {-sum(m[0] for m in moved if m[0] < 0)}):"]
+    lines += [f"  {r1['plant']:<24} c{r1['case']:<3} truth {'+'.join(r1['truth']) or '[]':<22} "
+              f"{correct_decisions(r0)} -> {correct_decisions(r1)} of {len(r1['by_decision'])}"
+              for _, r0, r1 in moved] or ["  none"]
+    return "\n".join(lines)

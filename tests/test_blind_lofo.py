@@ -43,3 +43,39 @@ def test_shortfall_sums_each_rate_below_its_target():
     rt = {"single_rate": 0.90, "pair_rate": 0.70, "fa_rate": 0.10}
     assert abs(blind_lofo.shortfall(rt) - (0.05 + 0.10 + 0.05)) < 1e-12
     assert blind_lofo.shortfall({"single_rate": 1.0, "pair_rate": float("nan"), "fa_rate": 0.0}) == 0.0
+
+
+# full decisions, as the benchmark stores them (the comparison describes them)
+C = '{"alpha": 0.05, "min_gain": 0.5, "min_share": 0.1}'
+D = '{"alpha": 0.001, "min_gain": 0.5, "min_share": 0.1}'
+
+
+def run_case(family: str, k: int, truth: list[str], right: dict[str, bool]) -> dict:
+    r = case(family, truth, right)
+    return r | {"seed": 0, "plant_index": 0, "case": k, "plant": f"{family}-s0-0"}
+
+
+def test_comparison_counts_the_grid_and_lists_what_moved():
+    before = [run_case("x", k, ["friction"], {C: True, D: True}) for k in range(4)]
+    before += [run_case("y", 10, ["backlash"], {C: False, D: False})]
+    after = [run_case("x", k, ["friction"], {C: True, D: k != 3}) for k in range(4)]  # case 3 loses under D
+    after += [run_case("y", 10, ["backlash"], {C: True, D: False})]  # gains under C, the default
+    after += [run_case("y", 11, ["backlash"], {C: True, D: True})]  # only in the new run
+    assert [blind_lofo.correct_decisions(r) for r in after] == [2, 2, 2, 1, 1, 2]
+    assert len(blind_lofo.matched(before, after)) == 5
+    text = blind_lofo.comparison_table(before, after, C, "old", "new")
+    assert "5 cases in both (0 only old, 1 only new)" in text
+    grid = next(line for line in text.splitlines() if line.startswith("correct decisions over the grid"))
+    assert grid.split()[-2:] == ["8/10", "8/10"]  # one gained, one lost; the case only in the new run not counted
+    changed = text.split("verdicts changed")[1].split("correct decisions moved")[0]
+    assert "y-s0-0" in changed and "default drift -> backlash" in changed
+    assert "x-s0-0" not in changed  # its default verdict did not move
+    moved = text.split("correct decisions moved")[1]
+    assert "(2 cases; gained 1, lost 1)" in moved
+    assert "1 -> 2 of 2" not in moved and "2 -> 1 of 2" in moved and "0 -> 1 of 2" in moved
+
+
+def test_comparison_of_runs_without_shared_cases_says_so():
+    a = [run_case("x", 0, ["friction"], {C: True})]
+    b = [run_case("x", 1, ["friction"], {C: True})]
+    assert blind_lofo.comparison_table(a, b, C) == "no case in both runs"
