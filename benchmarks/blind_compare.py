@@ -75,6 +75,8 @@ def main() -> None:
     if not before or not after:
         sys.exit(f"no cached results of seeds {args.seed} in {old_dir if not before else new_dir}")
     default = after[0]["default_decision"]
+    if any(default not in r["by_decision"] for r in before):
+        sys.exit(f"the other run has no verdicts under this code's default decision {default}: not comparable")
     if before[0]["default_decision"] != default:
         print(f"note: the shipped default decision differs ({before[0]['default_decision']} before); both runs are "
               f"scored under this code's ({default})")

@@ -506,8 +506,7 @@ def _gap_text(closed: list[float]) -> str:
 
 
 def comparison_table(before: list[dict], after: list[dict], default: str, label_before: str = "before",
-                     label_after: str = "after", pool_before: list[dict] | None = None,
-                     pool_after: list[dict] | None = None) -> str:
+                     label_after: str = "after") -> str:
     """Two runs on the same cases: the held-out figures of each (its own folds' choices), the shipped default's,
     the grid's correct decisions, per family, then every case whose verdict changed (under the default, or under
     its fold's decision in either run) and every case whose count of correct decisions moved."""
@@ -516,7 +515,7 @@ def comparison_table(before: list[dict], after: list[dict], default: str, label_
     a = [p[1] for p in pairs]
     if not pairs:
         return "no case in both runs"
-    fb, fa = lofo(b, default, pool_before), lofo(a, default, pool_after)
+    fb, fa = lofo(b, default), lofo(a, default)
     xb, xa = _figures(b, fb, default), _figures(a, fa, default)
     lines = [f"{len(pairs)} cases in both ({len(before) - len(pairs)} only {label_before}, "
              f"{len(after) - len(pairs)} only {label_after})", "",
