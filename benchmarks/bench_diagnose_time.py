@@ -1,7 +1,7 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
-                                                        trial-reach|blow-up|passes|kept-runs]
+                                                        trial-reach|blow-up|passes|kept-runs|processes]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
@@ -39,6 +39,10 @@ same arithmetic, so the reports must be identical.
 same grid through the same cores reuses them, and a search from the same effects over the same boxes takes the
 first one's end) against only each thread's last few runs kept (the code before), both on ``--threads`` threads
 (the command's default on two cores); the reports must be identical.
+``--compare processes``: the candidate fits on ``--threads`` worker processes forked per diagnosis (as shipped,
+``model.diag_pool``: each with its own interpreter lock; the search ends they find shared through the jobs)
+against on as many threads of one process (the code before: every kept run shared, but the fits' Python taking
+turns on one lock); the reports must be identical.
 
 Cases are the blind benchmark's (``bench_diagnose_blind.py``: plant ``--plant`` (0) of each family at ``--seed``,
 the case numbers given, or each ``--case`` family/seed/plant/case; 10-12 are its pairs, usually the slowest; all
@@ -69,7 +73,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
-from warpbridge.model import diag_fit, initial_state, kernels, model_error  # noqa: E402
+from warpbridge.model import diag_fit, diag_pool, initial_state, kernels, model_error  # noqa: E402
 from warpbridge.model._jit import njit  # noqa: E402
 from warpbridge.model.boucwen import forward  # noqa: E402
 from warpbridge.model.diag_fit import Problem  # noqa: E402
@@ -135,6 +139,14 @@ _SHIPPED_SEARCH = Problem._search
 def _unkept_search(self, boxes, s0, build, cost, lin, max_evals):
     """The baseline of ``--compare kept-runs``: every search run afresh."""
     return self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0, max_evals)
+
+
+_SHIPPED_CAN_FORK = diag_pool.can_fork
+
+
+def _no_fork() -> bool:
+    """The baseline of ``--compare processes``: the fits on threads of this process."""
+    return False
 
 
 _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smooth_rate,
@@ -254,7 +266,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
     shipped_passes = {key: getattr(*key) for key in _PASSES_BASELINE}
-    jobs = threads if (compare == "threads" and new) or compare == "kept-runs" else 1
+    jobs = threads if (compare == "threads" and new) or compare in ("kept-runs", "processes") else 1
     grid_bytes = diag_fit.GRID_CACHE_BYTES
     if compare == "kept-runs" and not new:
         diag_fit.GRID_CACHE_BYTES = 0
@@ -271,6 +283,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     if compare == "passes" and not new:
         for (module, name), fn in _PASSES_BASELINE.items():
             setattr(module, name, fn)
+    if compare == "processes" and not new:
+        diag_pool.can_fork = _no_fork
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -281,6 +295,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         diag_fit.GRID_CACHE_BYTES = grid_bytes
         Problem._search = _SHIPPED_SEARCH
         Problem._opening_cost = _SHIPPED_OPENING
+        diag_pool.can_fork = _SHIPPED_CAN_FORK
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
         for (module, name), fn in shipped_passes.items():
@@ -293,7 +308,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
-                                              "trial-reach", "blow-up", "passes", "kept-runs"),
+                                              "trial-reach", "blow-up", "passes", "kept-runs", "processes"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -305,7 +320,8 @@ def main(argv: list[str] | None = None) -> int:
                          "marched to the cap; passes: the per-evaluation terms (plays, lags, rate, start state) "
                          "in row-order compiled passes, and the input terms at a held band kept, against the code "
                          "before; kept-runs: the starting grids' core runs kept for every thread and each search's "
-                         "end by its start, against each thread's last few runs only, on --threads threads")
+                         "end by its start, against each thread's last few runs only, on --threads threads; "
+                         "processes: the fits on --threads worker processes against as many threads")
     ap.add_argument("--threads", type=int, default=2,
                     help="threads of the shipped variant (--compare threads; of both with kept-runs)")
     ap.add_argument("--seed", type=int, default=2)
@@ -325,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
                            "blow-up": ("to the cap", "ended"), "passes": ("before", "passes"),
-                           "kept-runs": ("per thread", "kept")}[a.compare]
+                           "kept-runs": ("per thread", "kept"), "processes": ("threads", "processes")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -343,6 +359,8 @@ def main(argv: list[str] | None = None) -> int:
                       "calls, those terms recomputed (baseline), one thread",
             "kept-runs": "the starting grids' core runs kept for every thread, each search's end by its start "
                          f"(shipped) vs each thread's last few runs only (baseline), {a.threads} threads",
+            "processes": f"the fits on {a.threads} worker processes (shipped) vs on {a.threads} threads of one "
+                         "process (baseline)",
             }[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"

@@ -42,7 +42,8 @@ effect beside an output-side one (a sensor lag, an aero load) or without it
 that starts from the same effects over the same boxes as an earlier one takes
 its end (the backward check's fit without an output-side effect can retrace
 the first round's). Results are the same; on a slow capstan-sheath pair the
-core runs went from 5 087 to 4 146.
+core runs went from 5 087 to 4 146. On worker processes (``diag_pool``) each
+worker keeps its own runs; the search ends go to every worker with the jobs.
 """
 
 from __future__ import annotations
@@ -54,7 +55,6 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from functools import partial
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -354,6 +354,18 @@ def _jsonable(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+@dataclass(frozen=True)
+class FitJob:
+    """One of ``Problem.fit``'s independent pieces: one combination of the moving effects' forms, called
+    without arguments; ``args`` alone (``Problem.fit_form_job``) fit it on a copy of the problem."""
+
+    problem: Problem = field(repr=False, compare=False)
+    args: tuple
+
+    def __call__(self) -> Fit:
+        return self.problem.fit_form_job(self.args)
+
+
 class Problem:
     """A log and a nominal model to be augmented; see the module docstring."""
 
@@ -586,7 +598,7 @@ class Problem:
         return self.best_of(run(jobs) if run is not None else [job() for job in jobs])
 
     def fit_jobs(self, names, start: Effects | None = None, free_nonlinear=None, max_evals: int = 200,
-                 grid_for: str | None = None) -> list[Callable[[], Fit]]:
+                 grid_for: str | None = None) -> list[FitJob]:
         """``fit``'s independent pieces, one per combination of the moving effects' forms (``best_of`` picks)."""
         names = tuple(names)
         start = start or self.base
@@ -594,7 +606,7 @@ class Problem:
         lin = tuple(f for n in names for f in linear_fields(n))
         if "aero_load" in names and self.q is None:
             raise ValueError("aero_load needs airspeed in the log")
-        return [partial(self._counted_fit_form, names, movers, forms, start, lin, max_evals, grid_for or names[-1])
+        return [FitJob(self, (names, movers, forms, start, lin, max_evals, grid_for or names[-1]))
                 for forms in itertools.product(*(forms_for(n, self.t, self.u) for n in movers))]
 
     @staticmethod
@@ -604,6 +616,26 @@ class Problem:
         best = min([f for f in fits if form_supported(f)] or fits, key=lambda f: f.train_mse)
         best.evaluations = sum(f.evaluations for f in fits)
         return best
+
+    def fit_form_job(self, args: tuple) -> Fit:
+        """The fit of a ``FitJob``'s arguments (``_fit_form``'s), its core runs counted in ``evaluations``."""
+        return self._counted_fit_form(*args)
+
+    def search_ends(self, start: int = 0) -> list[tuple[tuple, np.ndarray]]:
+        """The kept search ends (``_search``), from the ``start``-th kept on."""
+        with self._kept_lock:
+            return list(itertools.islice(self._searches.items(), start, None))
+
+    def keep_search_ends(self, ends: list[tuple[tuple, np.ndarray]]) -> None:
+        """Keep search ends found elsewhere (a worker's copy of this problem): the same search ends there."""
+        with self._kept_lock:
+            for key, s in ends:
+                self._searches.setdefault(key, s)
+
+    def count_runs(self, n: int) -> None:
+        """Add ``n`` core runs made elsewhere (a worker process's copy of this problem) to ``evaluations``."""
+        with self._count_lock:
+            self._evaluations += n
 
     def _counted_fit_form(self, *args) -> Fit:
         evals0 = self._thread_evaluations()

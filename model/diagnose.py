@@ -58,13 +58,14 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from warpbridge.model.diag_fit import Fit, Problem, Split
+from warpbridge.model.diag_pool import FitPool
 from warpbridge.model.diag_stats import (
     PairedGain,
     effective_n,
@@ -182,7 +183,7 @@ class DiagnoseOptions:
     joint_refits: int = 2  # candidates per round refitted jointly with the effects already chosen
     effects: tuple[str, ...] = EFFECT_NAMES  # the candidates
     use_model_error: bool = True  # apply the model-error model MODEL.json carries, if any
-    workers: int = 1  # threads fitting a round's candidates side by side (the verdict does not depend on it)
+    workers: int = 1  # processes fitting a round's candidates side by side (the verdict does not depend on it)
 
 
 @dataclass
@@ -285,16 +286,17 @@ class Explorer:
         self.rounds: dict[tuple[str, ...], list[Judged]] = {}
         self.fits: dict[tuple, Fit] = {(): nominal}
         self.neff_cache: dict[tuple[str, ...], float] = {}
-        self.pool: ThreadPoolExecutor | None = None  # set by ``threads`` for opt.workers > 1
+        self.pool: FitPool | None = None  # set by ``workers`` for opt.workers > 1
         self.speculative: dict[tuple, tuple[Fit, Fit]] = {}  # ``prefetch_without``'s (cur, fit) by ``without``'s key
 
     @contextmanager
-    def threads(self):
-        """Fit on ``opt.workers`` threads inside this block."""
+    def workers(self):
+        """Fit on ``opt.workers`` worker processes inside this block (``diag_pool``; threads where processes
+        cannot be forked)."""
         if self.opt.workers <= 1:
             yield self
             return
-        with ThreadPoolExecutor(self.opt.workers) as pool:
+        with FitPool(self.prob, self.opt.workers) as pool:
             self.pool = pool
             try:
                 yield self
@@ -364,16 +366,15 @@ class Explorer:
         return judged
 
     def each(self, label: str, jobs: dict[str, dict]) -> dict[str, Fit]:
-        """``prob.fit(**kwargs)`` for every job, each form of each on one of ``opt.workers`` threads (the fits
-        are independent and the compiled kernels release the GIL: the results are those of one after the
-        other)."""
+        """``prob.fit(**kwargs)`` for every job, each form of each on one of ``opt.workers`` workers (the fits
+        are independent: the results are those of one after the other)."""
         plans = {c: self.prob.fit_jobs(**kw) for c, kw in jobs.items()}
         flat = [job for plan in plans.values() for job in plan]
         results = iter(self.run(flat, label))
         return {c: self.prob.best_of([next(results) for _ in plan]) for c, plan in plans.items()}
 
     def run(self, jobs: list[Callable[[], Fit]], label: str = "") -> list[Fit]:
-        """The results of argument-free jobs, in order: on the thread pool when there is one."""
+        """The results of argument-free jobs, in order: on the worker pool when there is one."""
         n = len(jobs)
         tell = self.progress if self.progress and label else (lambda *_: None)
         tell(label, 0, n)
@@ -386,7 +387,7 @@ class Explorer:
         futs = [self.pool.submit(job) for job in jobs]
         for i, _ in enumerate(as_completed(futs)):
             tell(label, i + 1, n)
-        return [f.result() for f in futs]
+        return [self.pool.result(f, job) for f, job in zip(futs, jobs, strict=True)]
 
     def without(self, selected: tuple[str, ...], drop: str, cur: Fit) -> Fit:
         key = ("without", selected, drop)
@@ -404,7 +405,7 @@ class Explorer:
                     grid_for="", max_evals=self.opt.max_evals)
 
     def prefetch_without(self, selected: tuple[str, ...], cur: Fit) -> None:
-        """Fit ``without(selected, s, cur)`` for every s side by side (on the thread pool), kept aside until
+        """Fit ``without(selected, s, cur)`` for every s side by side (on the worker pool), kept aside until
         asked for with the same ``cur``: the backward pass asks for them one at a time and may stop early."""
         if self.pool is None:
             return
@@ -825,7 +826,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
     ex = Explorer(prob, names, base, nominal, floor2, opt, progress)
     alternatives = []
-    with ex.threads():
+    with ex.workers():
         path = decide(ex, opt.decision, opt.max_effects)
         for k, d in enumerate(opt.alternatives):
             if progress:

@@ -1010,10 +1010,10 @@ def _report_without_counts(d) -> str:
 
 
 def test_fitting_on_threads_gives_the_report_one_thread_gives():
-    """Two threads fit each round's candidates (and each form of friction) side by side and prefetch the
-    backward check: the verdict, every candidate's figures, the sensitivity's alternatives and the augmented
-    model are those of one thread. A pair on a bench with a model-error correction, so that the threads share
-    its cached input terms."""
+    """Two worker processes fit each round's candidates (and each form of friction) side by side and prefetch
+    the backward check: the verdict, every candidate's figures, the sensitivity's alternatives and the augmented
+    model are those of one process alone. A pair on a bench with a model-error correction, whose cached input
+    terms each worker keeps for itself."""
     mf = _bench_model(BENCH_LAG)
     t, u, w, v = make_log(BENCH_LAG.merged(Effects(backlash_mm=0.25, drift_deg_s=0.01)), seed=34, duration=12.0)
     runs = [diagnose(t, u, w, v, mf, DiagnoseOptions(workers=k, alternatives=DECISION_GRID[::12])) for k in (1, 2)]

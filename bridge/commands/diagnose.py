@@ -44,8 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensitivity", action="store_true",
                    help="also report the verdict under stricter and looser decision thresholds (slower)")
     p.add_argument("--jobs", type=int, default=0,
-                   help="threads fitting the candidates side by side (default 0: the cores free now; the verdict "
-                        "is the same for any number)")
+                   help="worker processes fitting the candidates side by side (default 0: the cores free now; the "
+                        "verdict is the same for any number)")
     p.add_argument("--quiet", action="store_true", help="no summary and no progress on the terminal, only the "
                                                       "file names")
 
@@ -62,7 +62,7 @@ def _options(args: argparse.Namespace) -> DiagnoseOptions:
     if not 0 < args.alpha < 0.5:
         raise UserError("--alpha must lie between 0 and 0.5")
     if args.jobs < 0:
-        raise UserError("--jobs must be 0 (the cores free now) or a number of threads")
+        raise UserError("--jobs must be 0 (the cores free now) or a number of workers")
     return DiagnoseOptions(max_effects=args.max_effects, decision=Decision(alpha=args.alpha), effects=names,
                            use_model_error=not args.no_model_error,
                            alternatives=DECISION_GRID if args.sensitivity else (),
