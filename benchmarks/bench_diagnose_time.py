@@ -6,7 +6,8 @@
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
-by side) against ``--threads`` threads (``--jobs N``; the command's default is the cores free at its start).
+by side) against ``--threads`` workers (``--jobs N``: worker processes since 18543fc, threads before; the
+command's default is the cores free at its start).
 ``--compare input-terms``: the model-error correction's input terms reused (as shipped) against recomputed at
 every evaluation (the code before they were cached), both on one thread. ``--compare band-travel``: the
 correction's loop-shape terms stretched in travel with a friction band (as shipped: their input terms computed
@@ -337,12 +338,12 @@ def main(argv: list[str] | None = None) -> int:
                               duration=blind.FIELD_S, timing_every=1)
     cases = [int(c) for c in a.cases.split(",")]
     rows = []
-    base_name, new_name = {"threads": ("1 thread", f"{a.threads} threads"), "input-terms": ("recomputed", "reused"),
+    base_name, new_name = {"threads": ("1 thread", f"{a.threads} workers"), "input-terms": ("recomputed", "reused"),
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
                            "blow-up": ("to the cap", "ended"), "passes": ("before", "passes"),
                            "kept-runs": ("per thread", "kept"), "processes": ("threads", "processes")}[a.compare]
-    what = {"threads": f"one thread (baseline) vs {a.threads} threads (--jobs {a.threads})",
+    what = {"threads": f"one thread (baseline) vs {a.threads} worker processes (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
                            "scale (baseline), one thread",
