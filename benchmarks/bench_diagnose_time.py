@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
                          "end by its start, against each thread's last few runs only, on --threads threads; "
                          "processes: the fits on --threads worker processes against as many threads")
     ap.add_argument("--threads", type=int, default=2,
-                    help="threads of the shipped variant (--compare threads; of both with kept-runs)")
+                    help="workers of the shipped variant (--compare threads; of both with kept-runs and processes)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")

@@ -15,8 +15,8 @@ search from where another started takes that one's end, ``diag_fit``).
 The caches a fit uses are memos of pure functions (core runs, input terms, a
 search's end by where it started), so a worker that lacks one computes the same
 value: the fits, and the report, are those of one process. Where processes
-cannot be forked (not POSIX), or the pool breaks (a worker killed), the jobs run
-on threads in this process instead, with a warning.
+cannot be forked (not POSIX) or started (a process limit), or the pool breaks (a
+worker killed), the jobs run on threads in this process instead, with a warning.
 """
 
 from __future__ import annotations
@@ -71,6 +71,10 @@ class FitPool:
             self._executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
             if not self._executor.submit(_ready).result():  # the first submit forks every worker
                 raise RuntimeError("a worker started without the problem")
+        except (OSError, RuntimeError, BrokenProcessPool) as e:  # no processes to be had (limits, memory)
+            log.warning("no worker processes for the diagnosis (%s); fitting on threads in this process", e)
+            self.processes = False
+            self._executor = self._threads()
         finally:
             _PROBLEM = None  # the workers have their copies; this process keeps none alive
 
@@ -110,5 +114,5 @@ class FitPool:
 
     def __exit__(self, *exc) -> None:
         self._executor.shutdown(wait=True, cancel_futures=True)
-        if self._fallback is not None:
+        if self._fallback is not None and self._fallback is not self._executor:
             self._fallback.shutdown(wait=True)

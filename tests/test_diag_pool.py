@@ -83,3 +83,17 @@ def test_without_fork_the_pool_is_threads_of_this_process(monkeypatch):
         got = [pool.result(pool.submit(job), job) for job in jobs]
     assert prob.evaluations - before == sum(f.evaluations for f in got) > 0
     assert all(_same(a, b) for a, b in zip(got, [job() for job in _problem().fit_jobs(("delay",))], strict=True))
+
+
+def test_a_pool_that_cannot_start_its_workers_fits_on_threads(monkeypatch, caplog):
+    def refused(*args, **kwargs):
+        raise OSError("Resource temporarily unavailable")
+
+    monkeypatch.setattr(diag_pool, "ProcessPoolExecutor", refused)
+    prob = _problem()
+    jobs = prob.fit_jobs(("delay",))
+    with caplog.at_level(logging.WARNING, logger="warpbridge.model.diag_pool"):
+        with FitPool(prob, 2) as pool:
+            got = [pool.result(pool.submit(job), job) for job in jobs]
+    assert not pool.processes and "Resource temporarily unavailable" in caplog.text
+    assert all(_same(a, b) for a, b in zip(got, [job() for job in _problem().fit_jobs(("delay",))], strict=True))
