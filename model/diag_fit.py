@@ -626,11 +626,13 @@ class Problem:
         with self._kept_lock:
             return list(itertools.islice(self._searches.items(), start, None))
 
-    def keep_search_ends(self, ends: list[tuple[tuple, np.ndarray]]) -> None:
-        """Keep search ends found elsewhere (a worker's copy of this problem): the same search ends there."""
+    def keep_search_ends(self, ends: list[tuple[tuple, np.ndarray]]) -> int:
+        """Keep search ends found elsewhere (a worker's copy of this problem): the same search ends there.
+        Returns how many are kept now."""
         with self._kept_lock:
             for key, s in ends:
                 self._searches.setdefault(key, s)
+            return len(self._searches)
 
     def count_runs(self, n: int) -> None:
         """Add ``n`` core runs made elsewhere (a worker process's copy of this problem) to ``evaluations``."""

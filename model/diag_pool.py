@@ -43,8 +43,7 @@ def _fit_in_worker(args: tuple, ends: list) -> tuple[Fit, list]:
     search ends the others found (``ends``)."""
     if _PROBLEM is None:
         raise RuntimeError("a fit job reached a worker without its problem")
-    _PROBLEM.keep_search_ends(ends)
-    n = len(_PROBLEM.search_ends())
+    n = _PROBLEM.keep_search_ends(ends)
     fit = _PROBLEM.fit_form_job(args)
     return fit, _PROBLEM.search_ends(n)
 
@@ -64,7 +63,7 @@ class FitPool:
         self.processes = can_fork()
         self._fallback: ThreadPoolExecutor | None = None
         if not self.processes:
-            self._executor: Executor = ThreadPoolExecutor(workers)
+            self._executor: Executor = self._threads()
             return
         _PROBLEM = prob
         try:
