@@ -346,11 +346,20 @@ class Explorer:
             # a latency effect beside a chosen one is refitted from the shared split even when its screen
             # (at nothing, the chosen one carrying both) ranks it low
             top += [c for c in fits if c not in top and starts[c] is not fits[c].effects]
-            joint = self.each(f"{label}, joint refits", {c: dict(names=selected + (c,), start=starts[c], grid_for="",
-                                                                 max_evals=opt.max_evals) for c in top})
+            jobs = {c: dict(names=selected + (c,), start=starts[c], grid_for="", max_evals=opt.max_evals) for c in top}
+            if len(selected) == 1:
+                # and from the other side: the new effect as it fitted alone, the chosen one searched afresh on
+                # its grid. Started from the chosen one's fit, the joint search can stay where that one has
+                # soaked up the new one's part (a backlash wide enough for a friction band too, a drift bent to
+                # follow a load), which the new one alone does not
+                jobs |= {(c, "reverse"): dict(names=selected + (c,), start=self.fits[(c,)].effects,
+                                              grid_for=selected[0], free_nonlinear=selected,
+                                              max_evals=opt.max_evals) for c in top}
+            joint = self.each(f"{label}, joint refits", jobs)
             for c in top:
-                if joint[c].train_mse <= fits[c].train_mse:
-                    fits[c] = joint[c]
+                for f in (joint[c], joint.get((c, "reverse"))):
+                    if f is not None and f.train_mse <= fits[c].train_mse:
+                        fits[c] = f
         best_mse = min((f.score_mse for f in fits.values()), default=math.inf)
         best_fit = next((f for f in fits.values() if f.score_mse == best_mse), cur)
         neff = effective_n((self.w - best_fit.w_pred)[prob.split.score])
@@ -365,7 +374,7 @@ class Explorer:
         self.rounds[selected] = judged
         return judged
 
-    def each(self, label: str, jobs: dict[str, dict]) -> dict[str, Fit]:
+    def each(self, label: str, jobs: dict) -> dict:
         """``prob.fit(**kwargs)`` for every job, each form of each on one of ``opt.workers`` workers (the fits
         are independent: the results are those of one after the other)."""
         plans = {c: self.prob.fit_jobs(**kw) for c, kw in jobs.items()}
@@ -767,18 +776,19 @@ def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Jud
     second effect enter together when the pair passes the test against the nominal, the second passes it
     against the first alone (as in round 2), and the first passes it against the second alone (as in the
     backward pass). Returns (first, second, the first's gain given the second) or None."""
-    lead = max((j for j in judged if j.gain.gain > 0), key=lambda j: j.penalised, default=None)
-    if lead is None:
-        return None
-    seconds = sorted((j for j in ex.round((lead.name,))
-                      if ex.admits(d, lead.fit, j.fit, j.gain) and ex.admits(d, ex.nominal, j.fit)),
-                     key=lambda j: -j.penalised)
-    for second in seconds[:2]:
-        pair = (lead.name, second.name)
-        alone = ex.without(pair, lead.name, second.fit)
-        g = ex.gain(alone, second.fit)
-        if ex.admits(d, alone, second.fit, g):
-            return lead, second, g
+    leads = sorted((j for j in judged if j.gain.gain > 0), key=lambda j: -j.penalised)
+    # the runner-up leads too when it explains nearly as much (as the second round's beam): with no effect
+    # significant alone, which of the two leads is a toss-up
+    for lead in leads[:1] + [j for j in leads[1:2] if j.gain.gain >= 0.5 * leads[0].gain.gain]:
+        seconds = sorted((j for j in ex.round((lead.name,))
+                          if ex.admits(d, lead.fit, j.fit, j.gain) and ex.admits(d, ex.nominal, j.fit)),
+                         key=lambda j: -j.penalised)
+        for second in seconds[:2]:
+            pair = (lead.name, second.name)
+            alone = ex.without(pair, lead.name, second.fit)
+            g = ex.gain(alone, second.fit)
+            if ex.admits(d, alone, second.fit, g):
+                return lead, second, g
     return None
 
 
