@@ -10,8 +10,9 @@ on the same scored blocks, with the same paired test the diagnosis admits an eff
 one of three classes:
 
 - ``search``: the true set fits the scored blocks significantly and materially better than the verdict and each
-  of its effects passes the diagnosis's test beside the others: the test would have named it, the search did
-  not reach it (the order of entry, a joint fit's start);
+  of its effects passes the diagnosis's test against the fit of the others (the test of the round that would
+  add it to them): the test would have named it, the search did not reach it (the order of entry, a joint
+  fit's start);
 - ``test``: the true set fits significantly better, but not by a material share of the floor, or an effect of
   it does not pass the test beside the others: a looser test would name it, at the price of false alarms;
 - ``log``: the true set fits the scored blocks no better than the verdict: no rule that names effects by how
@@ -73,7 +74,8 @@ def true_fit(ex, truth: tuple[str, ...]):
 
 
 def classify(ex, d, verdict_fit, truth_fit, truth: tuple[str, ...]) -> dict:
-    """The class of a miss (module docstring) and the figures it rests on."""
+    """The class of a miss (module docstring) and the figures it rests on. Each effect of the true set is tested
+    against ``true_fit`` of the others, as the round that would add it last tests it."""
     level = d.alpha / max(len(ex.names), 1)
     g = ex.gain(verdict_fit, truth_fit)  # > 0: the true set fits the scored blocks better
     better = g.gain > 0 and g.p_value < level

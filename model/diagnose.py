@@ -796,10 +796,6 @@ class Setup:
     slack_side: float  # where the play's slack is taken up at the start (``initial_state``)
     error_model: ErrorModel | None  # the model-error correction applied (None: not used)
 
-    @property
-    def nominal(self) -> Fit:
-        return self.ex.nominal
-
 
 def set_up(t, u, w, airspeed, model: ModelFile, opt: DiagnoseOptions,
            progress: Callable[[str, int, int], None] | None = None) -> Setup:
