@@ -46,6 +46,9 @@ from bench_diagnose_blind import (  # noqa: E402
     FAMILIES,
     FIELD_S,
     MAGNITUDE,
+    NONES,
+    PAIRS,
+    PLANTS,
     RATE,
     cached_results,
     case_list,
@@ -99,7 +102,7 @@ def examine(res: dict, workers: int, cache: Path) -> dict:
                               magnitude=MAGNITUDE)
     seed, index, k = res["seed"], res["plant_index"], res["case"]
     plant = draw_plants(seed, res["family"], index + 1)[index]
-    names, case_seed = draw_cases(seed, res["family"], index, 2, 3)[k]
+    names, case_seed = draw_cases(seed, res["family"], index, NONES, PAIRS)[k]
     with tempfile.TemporaryDirectory() as tmp:
         model = load_model(identified_model(plant, seed, index, args, Path(tmp)))
     fc = field_case(plant, case_seed, tuple(names), args.duration, args.rate, args.magnitude)
@@ -127,7 +130,7 @@ def main() -> None:
     seeds = [int(s) for s in args.seed.split(",")]
     families = args.family.split(",")
     res_dir = blind_compare.folder(args.sources, args.cache) if args.sources else results_dir(args.cache)
-    cases = case_list(seeds, families, argparse.Namespace(plants=3, nones=2, pairs=3, singles_only=False))
+    cases = case_list(seeds, families, argparse.Namespace(plants=PLANTS, nones=NONES, pairs=PAIRS, singles_only=False))
     results, todo = cached_results(cases, res_dir)
     if todo:
         sys.exit(f"{len(todo)} of {len(cases)} cases are not in {res_dir.name}: run bench_diagnose_blind.py first")
