@@ -99,6 +99,7 @@ DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.
                                 "benchmarks/bench_diagnose_blind.py"]
 BENCH_S, FIELD_S, CHECK_S, RATE = 40.0, 60.0, 30.0, 500.0
 CHECK_SKIP_S = 1.0
+PLANTS, NONES, PAIRS = 3, 2, 3  # per family and seed: plants; per plant: no-effect cases, random pairs
 
 
 def source_hash(paths: list[str]) -> str:
@@ -488,9 +489,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--family", default=",".join(FAMILIES), help=f"families (default: all of {', '.join(FAMILIES)})")
     ap.add_argument("--seed", default="0,1", help="seeds (plants and magnitudes differ per seed; default 0,1)")
-    ap.add_argument("--plants", type=int, default=3, help="plants per family and seed (default 3)")
-    ap.add_argument("--pairs", type=int, default=3, help="random pairs of effects per plant (default 3)")
-    ap.add_argument("--nones", type=int, default=2, help="no-effect cases per plant (default 2)")
+    ap.add_argument("--plants", type=int, default=PLANTS, help=f"plants per family and seed (default {PLANTS})")
+    ap.add_argument("--pairs", type=int, default=PAIRS, help=f"random pairs of effects per plant (default {PAIRS})")
+    ap.add_argument("--nones", type=int, default=NONES, help=f"no-effect cases per plant (default {NONES})")
     ap.add_argument("--quick", action="store_true", help="one plant per family and seed, one pair, one no-effect")
     ap.add_argument("--duration", type=float, default=FIELD_S, help="field log seconds (check logs: half)")
     ap.add_argument("--rate", type=float, default=RATE, help="samples per second")

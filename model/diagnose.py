@@ -792,12 +792,24 @@ def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Jud
     return None
 
 
-def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
-             progress: Callable[[str, int, int], None] | None = None) -> Diagnosis:
-    """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None).
+@dataclass
+class Setup:
+    """What every decision of a diagnosis starts from: the fitting problem (log, nominal model, its initial
+    state and error correction), the floor (noise and the model's known error) and the candidates."""
 
-    ``progress(stage, i, n)`` is called as the work advances (no I/O here)."""
-    opt = options or DiagnoseOptions()
+    prob: Problem
+    ex: Explorer
+    noise: float
+    e_m: float
+    skipped: dict[str, str]
+    z0: float  # the initial state estimated from the log's opening stretch
+    slack_side: float  # where the play's slack is taken up at the start (``initial_state``)
+    error_model: ErrorModel | None  # the model-error correction applied (None: not used)
+
+
+def set_up(t, u, w, airspeed, model: ModelFile, opt: DiagnoseOptions,
+           progress: Callable[[str, int, int], None] | None = None) -> Setup:
+    """Check a cleaned log and set up its diagnosis against ``model`` (``diagnose``'s first step)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
@@ -819,10 +831,29 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         raise ValueError("log too short after the warm-up to split into training and scoring blocks")
     base = model.effects
     w_nom = prob.predict(base)
-    r0 = w - w_nom
     noise = noise_floor(w)
     e_m = known_error(model, noise, opt.use_model_error)
-    floor2 = noise ** 2 + e_m ** 2
+    names = [n for n in opt.effects if n != "aero_load" or prob.has_airspeed]
+    why = "the log has no airspeed" if airspeed is None else "the airspeed is zero throughout the log"
+    skipped = {n: why for n in opt.effects if n not in names}
+    nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
+    ex = Explorer(prob, names, base, nominal, noise ** 2 + e_m ** 2, opt, progress)
+    return Setup(prob, ex, noise, e_m, skipped, z0, side, em)
+
+
+def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
+             progress: Callable[[str, int, int], None] | None = None) -> Diagnosis:
+    """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None).
+
+    ``progress(stage, i, n)`` is called as the work advances (no I/O here)."""
+    opt = options or DiagnoseOptions()
+    su = set_up(t, u, w, airspeed, model, opt, progress)
+    prob, ex, noise, e_m, skipped = su.prob, su.ex, su.noise, su.e_m, su.skipped
+    z0, side, em = su.z0, su.slack_side, su.error_model
+    t, u, w = prob.t, prob.u, prob.w
+    sp, base, names, nominal, floor2 = prob.split, ex.base, ex.names, ex.nominal, ex.floor2
+    w_nom = nominal.w_pred
+    r0 = w - w_nom
     analysed = sp.train | sp.score
     cl = cells(t, u, w_nom, airspeed)
     where = split(t, u, r0, cl, analysed, noise, e_m)
@@ -830,11 +861,6 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     white = ljung_box(ra)
     indep = input_independence(prewhiten(u[analysed]), ra[1:])
 
-    names = [n for n in opt.effects if n != "aero_load" or prob.has_airspeed]
-    why = "the log has no airspeed" if airspeed is None else "the airspeed is zero throughout the log"
-    skipped = {n: why for n in opt.effects if n not in names}
-    nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
-    ex = Explorer(prob, names, base, nominal, floor2, opt, progress)
     alternatives = []
     with ex.workers():
         path = decide(ex, opt.decision, opt.max_effects)
