@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from warpbridge.model.diag_fit import Fit, make_split
-from warpbridge.model.diagnose import DiagnoseOptions, Explorer, Judged, enter_together
+from warpbridge.model.diagnose import Decision, DiagnoseOptions, Explorer, Judged, _main_rounds, decide, enter_together
 from warpbridge.model.effects import Effects
 
 FS = 100.0
@@ -59,10 +59,9 @@ class SoakedProblem:
                    len(names), params_of={n: 1 for n in names})
 
 
-def explorer(prob: SoakedProblem) -> Explorer:
+def explorer(prob, names=("drift", "aero_load", "backlash")) -> Explorer:
     nominal = prob.outcome((), Effects())
-    return Explorer(prob, ["drift", "aero_load", "backlash"], Effects(), nominal, 0.02 ** 2, DiagnoseOptions(),
-                    None)
+    return Explorer(prob, list(names), Effects(), nominal, 0.02 ** 2, DiagnoseOptions(), None)
 
 
 def test_a_second_effect_the_first_soaked_up_is_refitted_from_its_own_fit():
@@ -128,3 +127,46 @@ def test_a_runner_up_under_half_the_leads_gain_does_not_lead():
     ex = PairExplorer({"pretension": [judged("aero_load", 0.3, passes=True, names=("pretension", "aero_load"))]})
     assert enter_together(ex, None, [judged("friction", 0.45), judged("pretension", 0.2)]) is None
     assert ex.leads == ["friction"]
+
+
+class ImitatorProblem(SoakedProblem):
+    """A drift and a sensor lag, and a slew limit that imitates most of both at once but nothing of either once
+    it is fitted: it wins round 1, and only the runner-up (the drift) leads to the pair."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.w = W_IMITATED
+
+    def fit(self, names, start=None, free_nonlinear=None, max_evals=200, grid_for=None, run=None):
+        return self.outcome(tuple(names), start or Effects())
+
+    def outcome(self, names: tuple[str, ...], start: Effects) -> Fit:
+        drift, lag = "drift" in names, "sensor_lag" in names
+        if drift and lag:
+            pred = DRIFT_BIG + LOAD
+        elif "rate_limit" in names:
+            pred = 0.8 * (DRIFT_BIG + LOAD)
+        else:
+            pred = DRIFT_BIG * drift + LOAD * lag
+        r = W_IMITATED - pred
+        return Fit(names, Effects(drift_deg_s=0.1 * drift, sensor_tau_s=0.05 * lag), pred,
+                   float(np.mean(r[SPLIT.train] ** 2)), float(np.mean(r[SPLIT.score] ** 2)), len(names),
+                   params_of={n: 1 for n in names})
+
+
+DRIFT_BIG = 0.5 * np.sin(2 * np.pi * 0.04 * T)
+W_IMITATED = DRIFT_BIG + LOAD + NOISE
+
+
+def test_a_runner_up_taken_for_its_pair_keeps_its_confidence():
+    """Round 2 goes on from the runner-up: the report's confidence in it is its own test's, not lowered
+    because the winner of round 1 explained more alone."""
+    ex = explorer(ImitatorProblem(), ("rate_limit", "drift", "sensor_lag"))
+    d = Decision()
+    path = decide(ex, d, max_effects=3)
+    assert sorted(path.named) == ["drift", "sensor_lag"]
+    assert path.from_runner_up and any("runner-up drift" in n for n in path.notes)
+    first = {j.name: j for j in ex.round(())}
+    assert first["rate_limit"].gain.gain > first["drift"].gain.gain
+    _, _, confidence = _main_rounds(ex, path, DiagnoseOptions(decision=d))
+    assert confidence["drift"] > 0.9 and confidence["sensor_lag"] > 0.9
