@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from concurrent.futures import as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -374,7 +374,7 @@ class Explorer:
         self.rounds[selected] = judged
         return judged
 
-    def each(self, label: str, jobs: dict) -> dict:
+    def each(self, label: str, jobs: dict[Hashable, dict]) -> dict[Hashable, Fit]:
         """``prob.fit(**kwargs)`` for every job, each form of each on one of ``opt.workers`` workers (the fits
         are independent: the results are those of one after the other)."""
         plans = {c: self.prob.fit_jobs(**kw) for c, kw in jobs.items()}
@@ -772,10 +772,11 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
     """Two effects that hide each other, when no effect alone passes the test: the unexplained one leaves
-    slow, structured error that weakens the evidence for the other. The first round's best candidate and a
-    second effect enter together when the pair passes the test against the nominal, the second passes it
-    against the first alone (as in round 2), and the first passes it against the second alone (as in the
-    backward pass). Returns (first, second, the first's gain given the second) or None."""
+    slow, structured error that weakens the evidence for the other. The first round's best candidate (or its
+    runner-up, when that explains at least half as much) and a second effect enter together when the pair
+    passes the test against the nominal, the second passes it against the first alone (as in round 2), and
+    the first passes it against the second alone (as in the backward pass). Returns (first, second, the
+    first's gain given the second) or None."""
     leads = sorted((j for j in judged if j.gain.gain > 0), key=lambda j: -j.penalised)
     # the runner-up leads too when it explains nearly as much (as the second round's beam): with no effect
     # significant alone, which of the two leads is a toss-up

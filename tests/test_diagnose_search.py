@@ -73,7 +73,7 @@ def test_a_second_effect_the_first_soaked_up_is_refitted_from_its_own_fit():
     load = second["aero_load"]
     assert load.fit.effects.aero_deg_per_kpa == 1.0  # the pair from the load's own fit, not the stuck one
     assert load.fit.score_mse < 1.5 * np.mean(NOISE[SPLIT.score] ** 2)
-    assert ((("drift", "aero_load"), OWN_LOAD)) in prob.starts
+    assert (("drift", "aero_load"), OWN_LOAD) in prob.starts  # the reverse refit was asked for
     # a round after two chosen effects refits only from where the chosen ones are
     prob.starts.clear()
     ex.round(("drift", "aero_load"))
