@@ -1,13 +1,17 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
-                                                        trial-reach|blow-up|passes|kept-runs|processes]
+                                                        trial-reach|blow-up|passes|kept-runs|processes|schedule]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
 by side) against ``--threads`` workers (``--jobs N``: worker processes since 18543fc, threads before; the
 command's default is the cores free at its start).
+``--compare schedule``: on ``--threads`` workers, each stage's fits handed out longest first
+(``diagnose.hand_out_order``, by ``FitJob.expected_runs``) and the beam's two second rounds fitted side by side
+(``Explorer.rounds``) (as shipped) against in the order they were asked for and one round at a time (the code
+before); the reports must be identical.
 ``--compare input-terms``: the model-error correction's input terms reused (as shipped) against recomputed at
 every evaluation (the code before they were cached), both on one thread. ``--compare band-travel``: the
 correction's loop-shape terms stretched in travel with a friction band (as shipped: their input terms computed
@@ -74,7 +78,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
-from warpbridge.model import diag_fit, diag_pool, initial_state, kernels, model_error  # noqa: E402
+from warpbridge.model import diag_fit, diag_pool, diagnose, initial_state, kernels, model_error  # noqa: E402
 from warpbridge.model._jit import njit  # noqa: E402
 from warpbridge.model.boucwen import forward  # noqa: E402
 from warpbridge.model.diag_fit import Problem  # noqa: E402
@@ -148,6 +152,20 @@ _SHIPPED_CAN_FORK = diag_pool.can_fork
 def _no_fork() -> bool:
     """The baseline of ``--compare processes``: the fits on threads of this process."""
     return False
+
+
+_SHIPPED_ROUNDS = diagnose.Explorer.rounds
+_SHIPPED_ORDER = diagnose.hand_out_order
+
+
+def _one_by_one(self, selections):
+    """The baseline of ``--compare schedule``: each round's fits handed out on their own."""
+    return [_SHIPPED_ROUNDS(self, [s])[0] for s in selections]
+
+
+def _as_asked(jobs) -> list[int]:
+    """The baseline of ``--compare schedule``: the jobs handed out in the order they were asked for."""
+    return list(range(len(jobs)))
 
 
 _TIME_TERMS_BASELINE = {"lag_states": _old_lag_states, "_smooth_rate": _old_smooth_rate,
@@ -267,7 +285,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
     shipped_passes = {key: getattr(*key) for key in _PASSES_BASELINE}
-    jobs = threads if (compare == "threads" and new) or compare in ("kept-runs", "processes") else 1
+    jobs = threads if (compare == "threads" and new) or compare in ("kept-runs", "processes", "schedule") else 1
     grid_bytes = diag_fit.GRID_CACHE_BYTES
     if compare == "kept-runs" and not new:
         diag_fit.GRID_CACHE_BYTES = 0
@@ -286,6 +304,9 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
             setattr(module, name, fn)
     if compare == "processes" and not new:
         diag_pool.can_fork = _no_fork
+    if compare == "schedule" and not new:
+        diagnose.Explorer.rounds = _one_by_one
+        diagnose.hand_out_order = _as_asked
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -297,6 +318,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         Problem._search = _SHIPPED_SEARCH
         Problem._opening_cost = _SHIPPED_OPENING
         diag_pool.can_fork = _SHIPPED_CAN_FORK
+        diagnose.Explorer.rounds = _SHIPPED_ROUNDS
+        diagnose.hand_out_order = _SHIPPED_ORDER
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
         for (module, name), fn in shipped_passes.items():
@@ -309,7 +332,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
-                                              "trial-reach", "blow-up", "passes", "kept-runs", "processes"),
+                                              "trial-reach", "blow-up", "passes", "kept-runs", "processes",
+                                              "schedule"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -322,7 +346,9 @@ def main(argv: list[str] | None = None) -> int:
                          "in row-order compiled passes, and the input terms at a held band kept, against the code "
                          "before; kept-runs: the starting grids' core runs kept for every thread and each search's "
                          "end by its start, against each thread's last few runs only, on --threads threads; "
-                         "processes: the fits on --threads worker processes against as many threads")
+                         "processes: the fits on --threads worker processes against as many threads; schedule: "
+                         "the jobs handed out longest first and the beam's second rounds together, against in "
+                         "the order asked for and one round at a time, on --threads workers")
     ap.add_argument("--threads", type=int, default=2,
                     help="workers of the shipped variant (--compare threads; of both with kept-runs and processes)")
     ap.add_argument("--seed", type=int, default=2)
@@ -342,7 +368,8 @@ def main(argv: list[str] | None = None) -> int:
                            "band-travel": ("bench travel", "stretched"), "time-terms": ("before", "kept"),
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
                            "blow-up": ("to the cap", "ended"), "passes": ("before", "passes"),
-                           "kept-runs": ("per thread", "kept"), "processes": ("threads", "processes")}[a.compare]
+                           "kept-runs": ("per thread", "kept"), "processes": ("threads", "processes"),
+                           "schedule": ("as asked", "longest")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} worker processes (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -362,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
                          f"(shipped) vs each thread's last few runs only (baseline), {a.threads} threads",
             "processes": f"the fits on {a.threads} worker processes (shipped) vs on {a.threads} threads of one "
                          "process (baseline)",
+            "schedule": "the fits handed out longest first, the beam's two second rounds side by side (shipped) vs "
+                        f"in the order asked for, one round at a time (baseline), {a.threads} workers",
             }[a.compare]
     by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"

@@ -365,6 +365,16 @@ class FitJob:
     def __call__(self) -> Fit:
         return self.problem.fit_form_job(self.args)
 
+    @property
+    def expected_runs(self) -> int:
+        """About how many core runs the job costs, from its search alone: a Nelder-Mead of ``max_evals`` for
+        two free parameters or more, a Brent of up to 30 for one, next to nothing for none (its linear
+        parameters are solved). Only the order jobs are handed out in follows it (the longest first, so that
+        no worker is left with a long one while the others idle); the fits do not depend on it."""
+        forms, max_evals = self.args[2], self.args[5]
+        free = sum(not b.fixed for form in forms for b in form)
+        return max_evals if free >= 2 else (30 if free == 1 else 1)
+
 
 class Problem:
     """A log and a nominal model to be augmented; see the module docstring."""

@@ -274,6 +274,13 @@ def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) ->
     return estimate_plant_start(Plant(model.params, model.effects, em), t, u, w, airspeed)
 
 
+def hand_out_order(jobs: list) -> list[int]:
+    """The order the pool gets ``jobs`` in (its queue is first in, first out): the longest first by their
+    ``expected_runs``, since a stage ends when its last job does, and a long job started last leaves the other
+    workers idle until then. The fits, and the report, do not depend on it."""
+    return sorted(range(len(jobs)), key=lambda i: -getattr(jobs[i], "expected_runs", 0))
+
+
 class Explorer:
     """The candidate fits of every round the decisions ask for, each computed once."""
 
@@ -283,7 +290,7 @@ class Explorer:
         self.w = prob.w
         self.floor2 = floor2
         self.nominal = nominal
-        self.rounds: dict[tuple[str, ...], list[Judged]] = {}
+        self.rounds_done: dict[tuple[str, ...], list[Judged]] = {}
         self.fits: dict[tuple, Fit] = {(): nominal}
         self.neff_cache: dict[tuple[str, ...], float] = {}
         self.pool: FitPool | None = None  # set by ``workers`` for opt.workers > 1
@@ -330,48 +337,79 @@ class Explorer:
 
     def round(self, selected: tuple[str, ...]) -> list[Judged]:
         """Every remaining effect fitted jointly with ``selected`` and judged against ``selected``'s fit."""
-        if selected in self.rounds:
-            return self.rounds[selected]
-        cur = self.fit_of(selected)
-        prob, opt = self.prob, self.opt
-        remaining = [n for n in self.names if n not in selected]
-        label = "round 1" if not selected else f"round {len(selected) + 1} (after {' + '.join(selected)})"
+        return self.rounds([selected])[0]
+
+    def rounds(self, selections: list[tuple[str, ...]]) -> list[list[Judged]]:
+        """``round`` of each selection, their fits handed out together (the beam's two second rounds: one
+        stage's tail keeps fewer workers idle than two)."""
+        todo = list(dict.fromkeys(s for s in selections if s not in self.rounds_done))
+        for s in todo:
+            self.fit_of(s)
+        labels = [self._label(s) for s in todo]
         # screen with the chosen effects held (their linear parameters still move), then refit the most
         # promising jointly: effects interact, and a chosen one may have soaked up part of the new one
-        fits = self.each(label, {c: dict(names=selected + (c,), start=cur.effects, grid_for=c,
-                                         free_nonlinear=(c,), max_evals=opt.max_evals) for c in remaining})
-        if selected:
-            starts = {c: shared_latency_start(fits[c].effects, selected, c, self.base) for c in fits}
-            top = sorted(fits, key=lambda k: fits[k].train_mse)[:opt.joint_refits]
-            # a latency effect beside a chosen one is refitted from the shared split even when its screen
-            # (at nothing, the chosen one carrying both) ranks it low
-            top += [c for c in fits if c not in top and starts[c] is not fits[c].effects]
-            jobs = {c: dict(names=selected + (c,), start=starts[c], grid_for="", max_evals=opt.max_evals) for c in top}
-            if len(selected) == 1:
-                # and from the other side: the new effect as it fitted alone, the chosen one searched afresh on
-                # its grid. Started from the chosen one's fit, the joint search can stay where that one has
-                # soaked up the new one's part (a backlash wide enough for a friction band too, a drift bent to
-                # follow a load), which the new one alone does not
-                jobs |= {(c, "reverse"): dict(names=selected + (c,), start=self.fits[(c,)].effects,
-                                              grid_for=selected[0], free_nonlinear=selected,
-                                              max_evals=opt.max_evals) for c in top}
-            joint = self.each(f"{label}, joint refits", jobs)
-            for c in top:
-                for f in (joint[c], joint.get((c, "reverse"))):
-                    if f is not None and f.train_mse <= fits[c].train_mse:
-                        fits[c] = f
+        screens = self.each("; ".join(labels), {(s, c): self._screen_job(s, c) for s in todo
+                                                for c in self._remaining(s)})
+        fits = {s: {c: screens[(s, c)] for c in self._remaining(s)} for s in todo}
+        refits = {s: self._refit_jobs(s, fits[s]) for s in todo if s}
+        joint = self.each("; ".join(f"{lb}, joint refits" for s, lb in zip(todo, labels, strict=True) if s),
+                          {(s, k): job for s, jobs in refits.items() for k, job in jobs.items()})
+        for s, jobs in refits.items():
+            for c in {k if isinstance(k, str) else k[0] for k in jobs}:
+                for k in (c, (c, "reverse")):
+                    f = joint.get((s, k))
+                    if f is not None and f.train_mse <= fits[s][c].train_mse:
+                        fits[s][c] = f
+        for s in todo:
+            self.rounds_done[s] = self._judge(s, fits[s])
+        return [self.rounds_done[s] for s in selections]
+
+    @staticmethod
+    def _label(selected: tuple[str, ...]) -> str:
+        return "round 1" if not selected else f"round {len(selected) + 1} (after {' + '.join(selected)})"
+
+    def _remaining(self, selected: tuple[str, ...]) -> list[str]:
+        return [n for n in self.names if n not in selected]
+
+    def _screen_job(self, selected: tuple[str, ...], c: str) -> dict:
+        """``c`` fitted beside ``selected`` held at its fit, from the grid of ``c``'s own parameters."""
+        return dict(names=selected + (c,), start=self.fits[selected].effects, grid_for=c, free_nonlinear=(c,),
+                    max_evals=self.opt.max_evals)
+
+    def _refit_jobs(self, selected: tuple[str, ...], fits: dict[str, Fit]) -> dict[Hashable, dict]:
+        """The joint refits of a round's most promising screens (by the training fit), keyed by candidate, and
+        by (candidate, "reverse") for those started from the candidate's own fit."""
+        starts = {c: shared_latency_start(fits[c].effects, selected, c, self.base) for c in fits}
+        top = sorted(fits, key=lambda k: fits[k].train_mse)[:self.opt.joint_refits]
+        # a latency effect beside a chosen one is refitted from the shared split even when its screen
+        # (at nothing, the chosen one carrying both) ranks it low
+        top += [c for c in fits if c not in top and starts[c] is not fits[c].effects]
+        jobs: dict[Hashable, dict] = {c: dict(names=selected + (c,), start=starts[c], grid_for="",
+                                              max_evals=self.opt.max_evals) for c in top}
+        if len(selected) == 1:
+            # and from the other side: the new effect as it fitted alone, the chosen one searched afresh on
+            # its grid. Started from the chosen one's fit, the joint search can stay where that one has
+            # soaked up the new one's part (a backlash wide enough for a friction band too, a drift bent to
+            # follow a load), which the new one alone does not
+            jobs |= {(c, "reverse"): dict(names=selected + (c,), start=self.fits[(c,)].effects,
+                                          grid_for=selected[0], free_nonlinear=selected,
+                                          max_evals=self.opt.max_evals) for c in top}
+        return jobs
+
+    def _judge(self, selected: tuple[str, ...], fits: dict[str, Fit]) -> list[Judged]:
+        """Each candidate's fit judged against ``selected``'s (held-out gain, share, penalised likelihood)."""
+        cur, prob = self.fits[selected], self.prob
         best_mse = min((f.score_mse for f in fits.values()), default=math.inf)
         best_fit = next((f for f in fits.values() if f.score_mse == best_mse), cur)
         neff = effective_n((self.w - best_fit.w_pred)[prob.split.score])
         judged = []
-        for c in remaining:
+        for c in self._remaining(selected):
             f = fits[c]
             g = self.gain(cur, f)
             ok = f.score_mse > 0 and cur.score_mse > 0 and math.isfinite(f.score_mse)
             pen = neff * math.log(cur.score_mse / f.score_mse) - 2 * f.params_of[c] if ok else -math.inf
             judged.append(Judged(c, f, g, self.share(cur, g.gain), pen))
             self.fits[selected + (c,)] = f
-        self.rounds[selected] = judged
         return judged
 
     def each(self, label: str, jobs: dict[Hashable, dict]) -> dict[Hashable, Fit]:
@@ -393,10 +431,10 @@ class Explorer:
                 out.append(job())
                 tell(label, len(out), n)
             return out
-        futs = [self.pool.submit(job) for job in jobs]
-        for i, _ in enumerate(as_completed(futs)):
+        futs = {i: self.pool.submit(jobs[i]) for i in hand_out_order(jobs)}
+        for i, _ in enumerate(as_completed(futs.values())):
             tell(label, i + 1, n)
-        return [self.pool.result(f, job) for f, job in zip(futs, jobs, strict=True)]
+        return [self.pool.result(futs[i], job) for i, job in enumerate(jobs)]
 
     def without(self, selected: tuple[str, ...], drop: str, cur: Fit) -> Fit:
         key = ("without", selected, drop)
@@ -477,6 +515,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     for rnd in range(min(max_effects, len(ex.names))):
         if len(sel) >= max_effects:
             break
+        if rnd == 1 and runner_up is not None:
+            ex.rounds([sel, (runner_up.name,)])  # the beam's two second rounds fitted side by side
         judged = ex.round(sel)
         start_mse.append(cur.score_mse)
         acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain)]
@@ -1080,9 +1120,9 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
     order = sorted(path.chosen_round, key=path.chosen_round.get)
     prefixes = [tuple(order[:k]) for k in range(len(order) + 1)]
     for k, pre in enumerate(prefixes):
-        if pre not in ex.rounds:
+        if pre not in ex.rounds_done:
             break
-        judged = ex.rounds[pre]
+        judged = ex.rounds_done[pre]
         cur = ex.fit_of(pre) if pre else ex.nominal
         rounds.append(judged)
         # an effect given to the aero load is the load's: not a candidate of its own, nor a rival

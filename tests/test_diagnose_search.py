@@ -5,12 +5,22 @@ search's bookkeeping, not the fitting."""
 
 from __future__ import annotations
 
+from concurrent.futures import Future
 from types import SimpleNamespace
 
 import numpy as np
 
 from warpbridge.model.diag_fit import Fit, make_split
-from warpbridge.model.diagnose import Decision, DiagnoseOptions, Explorer, Judged, _main_rounds, decide, enter_together
+from warpbridge.model.diagnose import (
+    Decision,
+    DiagnoseOptions,
+    Explorer,
+    Judged,
+    _main_rounds,
+    decide,
+    enter_together,
+    hand_out_order,
+)
 from warpbridge.model.effects import Effects
 
 FS = 100.0
@@ -170,3 +180,58 @@ def test_a_runner_up_taken_for_its_pair_keeps_its_confidence():
     assert first["rate_limit"].gain.gain > first["drift"].gain.gain
     _, _, confidence = _main_rounds(ex, path, DiagnoseOptions(decision=d))
     assert confidence["drift"] > 0.9 and confidence["sensor_lag"] > 0.9
+
+
+def test_the_beams_second_rounds_fitted_together_judge_as_one_at_a_time():
+    """``Explorer.rounds`` hands both second rounds' fits out in one stage (and their joint refits in a second),
+    and judges each as ``round`` alone does."""
+    stages: list[str] = []
+    together = explorer(SoakedProblem())
+    together.progress = lambda label, i, n: stages.append(label) if i == 0 else None
+    pair = together.rounds([("drift",), ("aero_load",)])
+    alone = explorer(SoakedProblem())
+    for sel, judged_together in zip((("drift",), ("aero_load",)), pair, strict=True):
+        judged_alone = alone.round(sel)
+        assert [j.name for j in judged_together] == [j.name for j in judged_alone]
+        for a, b in zip(judged_together, judged_alone, strict=True):
+            assert a.fit.effects == b.fit.effects and a.fit.score_mse == b.fit.score_mse
+            assert a.gain.gain == b.gain.gain and a.penalised == b.penalised
+    assert stages[1:] == ["round 2 (after drift); round 2 (after aero_load)",
+                          "round 2 (after drift), joint refits; round 2 (after aero_load), joint refits"]
+    assert together.rounds([("drift",)])[0] is pair[0]  # each round fitted once
+
+
+class ImmediatePool:
+    """A worker pool that runs each job as it is handed out, and records the order."""
+
+    def __init__(self) -> None:
+        self.handed: list[int] = []
+
+    def submit(self, job) -> Future:
+        self.handed.append(job.index)
+        f: Future = Future()
+        f.set_result(job())
+        return f
+
+    @staticmethod
+    def result(future: Future, job):
+        return future.result()
+
+
+class Job:
+    def __init__(self, index: int, runs: int | None) -> None:
+        self.index = index
+        if runs is not None:
+            self.expected_runs = runs
+
+    def __call__(self) -> int:
+        return self.index
+
+
+def test_the_longest_jobs_are_handed_out_first_and_the_results_come_back_as_asked():
+    jobs = [Job(0, 30), Job(1, 120), Job(2, None), Job(3, 1), Job(4, 120)]
+    assert hand_out_order(jobs) == [1, 4, 0, 3, 2]  # ties in the order asked; a job of unknown cost last
+    ex = explorer(SoakedProblem())
+    ex.pool = ImmediatePool()
+    assert ex.run(jobs, "stage") == [0, 1, 2, 3, 4]
+    assert ex.pool.handed == [1, 4, 0, 3, 2]
