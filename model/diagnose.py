@@ -354,9 +354,9 @@ class Explorer:
         refits = {s: self._refit_jobs(s, fits[s]) for s in todo if s}
         joint = self.each("; ".join(f"{lb}, joint refits" for s, lb in zip(todo, labels, strict=True) if s),
                           {(s, k): job for s, jobs in refits.items() for k, job in jobs.items()})
-        for s, jobs in refits.items():
-            for c in {k if isinstance(k, str) else k[0] for k in jobs}:
-                for k in (c, (c, "reverse")):
+        for s in refits:
+            for c in fits[s]:
+                for k in (c, (c, "reverse")):  # the refit from the chosen effects' fit, then the reverse one
                     f = joint.get((s, k))
                     if f is not None and f.train_mse <= fits[s][c].train_mse:
                         fits[s][c] = f
