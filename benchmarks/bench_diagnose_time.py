@@ -350,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
                          "the jobs handed out longest first and the beam's second rounds together, against in "
                          "the order asked for and one round at a time, on --threads workers")
     ap.add_argument("--threads", type=int, default=2,
-                    help="workers of the shipped variant (--compare threads; of both with kept-runs and processes)")
+                    help="workers of the shipped variant (--compare threads; of both with kept-runs, processes "
+                         "and schedule)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")
