@@ -88,6 +88,7 @@ log = logging.getLogger(__name__)
 
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 GRID_CACHE_BYTES = 128 * 2 ** 20  # the starting grids' core runs kept for every thread (``Problem.core``)
+BRENT_MAX_ITER = 30  # a one-parameter search's iterations (``Problem._brent``)
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
 INPUT_FIELDS = ("delay_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain", "pretension_loop",
@@ -368,12 +369,12 @@ class FitJob:
     @property
     def expected_runs(self) -> int:
         """About how many core runs the job costs, from its search alone: a Nelder-Mead of ``max_evals`` for
-        two free parameters or more, a Brent of up to 30 for one, next to nothing for none (its linear
-        parameters are solved). Only the order jobs are handed out in follows it (the longest first, so that
-        no worker is left with a long one while the others idle); the fits do not depend on it."""
+        two free parameters or more, a Brent of up to ``BRENT_MAX_ITER`` for one, next to nothing for none
+        (its linear parameters are solved). Only the order jobs are handed out in follows it (the longest
+        first, so that no worker is left with a long one while the others idle); the fits do not depend on it."""
         forms, max_evals = self.args[2], self.args[5]
         free = sum(not b.fixed for form in forms for b in form)
-        return max_evals if free >= 2 else (30 if free == 1 else 1)
+        return max_evals if free >= 2 else (BRENT_MAX_ITER if free == 1 else 1)
 
 
 class Problem:
@@ -732,7 +733,7 @@ class Problem:
         lo, hi = max(0.0, x0 - 1.0 / 12), min(1.0, x0 + 1.0 / 12)
         c0 = cost(s0)
         r = minimize_scalar(lambda x: cost(np.array([x])), bounds=(lo, hi), method="bounded",
-                            options={"xatol": 5e-4, "maxiter": 30})
+                            options={"xatol": 5e-4, "maxiter": BRENT_MAX_ITER})
         return np.array([r.x]) if r.fun <= c0 else s0
 
     @staticmethod

@@ -515,9 +515,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     for rnd in range(min(max_effects, len(ex.names))):
         if len(sel) >= max_effects:
             break
-        if rnd == 1 and runner_up is not None:
-            ex.rounds([sel, (runner_up.name,)])  # the beam's two second rounds fitted side by side
-        judged = ex.round(sel)
+        # the beam's two second rounds (below) fitted side by side
+        judged = ex.rounds([sel, (runner_up.name,)])[0] if rnd == 1 and runner_up is not None else ex.round(sel)
         start_mse.append(cur.score_mse)
         acc = [j for j in judged if ex.admits(d, cur, j.fit, j.gain)]
         if not acc and not sel and max_effects >= 2:

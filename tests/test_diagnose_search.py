@@ -196,6 +196,11 @@ def test_the_beams_second_rounds_fitted_together_judge_as_one_at_a_time():
         for a, b in zip(judged_together, judged_alone, strict=True):
             assert a.fit.effects == b.fit.effects and a.fit.score_mse == b.fit.score_mse
             assert a.gain.gain == b.gain.gain and a.penalised == b.penalised
+    # each round's own outcome on the stand-in: beside the drift, the load from its own fit (the pair); beside
+    # the load, the drift fitted from the load's own size (the pair again)
+    after_drift, after_load = ({j.name: j for j in judged} for judged in pair)
+    assert after_drift["aero_load"].fit.effects.aero_deg_per_kpa == OWN_LOAD.aero_deg_per_kpa
+    assert after_load["drift"].fit.effects == Effects(drift_deg_s=0.05, aero_deg_per_kpa=1.0)
     assert stages[1:] == ["round 2 (after drift); round 2 (after aero_load)",
                           "round 2 (after drift), joint refits; round 2 (after aero_load), joint refits"]
     assert together.rounds([("drift",)])[0] is pair[0]  # each round fitted once
