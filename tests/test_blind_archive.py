@@ -1,0 +1,63 @@
+"""The blind benchmark's results archive: packed whole and byte for byte the same, unpacked without overwriting."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import blind_archive  # noqa: E402
+
+CASES = [("dahl", 0, 0, k, [], 0) for k in range(3)]
+
+
+def result(k: int, verdict: list[str], grid: list[str] | None = None) -> dict:
+    return {"family": "dahl", "seed": 0, "plant_index": 0, "case": k, "verdict": verdict, "sources": "abc",
+            "by_decision": {"d1": {"verdict": verdict if grid is None else grid, "gap_closed": 0.9}}}
+
+
+def folder(root: Path, name: str = "d60-r500-b40-0123456789ab") -> Path:
+    d = root / name
+    d.mkdir(parents=True)
+    for k in range(3):
+        (d / f"dahl-s0-p0-c{k}.json").write_text(json.dumps(result(k, ["drift"] if k else [])))
+    return d
+
+
+def test_a_packed_folder_unpacks_to_the_same_results(tmp_path):
+    src = folder(tmp_path / "a")
+    arc = blind_archive.pack(src, CASES, tmp_path / "archive")
+    assert arc.name == f"{src.name}.jsonl.gz"
+    written, kept, differ = blind_archive.unpack(arc, tmp_path / "b")
+    assert (written, kept, differ) == (3, 0, [])
+    for f in src.iterdir():
+        assert json.loads((tmp_path / "b" / src.name / f.name).read_text()) == json.loads(f.read_text())
+
+
+def test_the_same_results_pack_to_the_same_bytes(tmp_path):
+    one = blind_archive.pack(folder(tmp_path / "a"), CASES, tmp_path / "x").read_bytes()
+    two = blind_archive.pack(folder(tmp_path / "b"), CASES, tmp_path / "y").read_bytes()
+    assert one == two
+
+
+def test_a_run_with_cases_missing_is_not_packed(tmp_path):
+    src = folder(tmp_path / "a")
+    (src / "dahl-s0-p0-c1.json").unlink()
+    with pytest.raises(ValueError, match="1 of 3 cases have no result"):
+        blind_archive.pack(src, CASES, tmp_path / "archive")
+    assert not (tmp_path / "archive").exists()
+
+
+def test_unpack_keeps_the_cached_result_and_names_a_verdict_that_differs(tmp_path):
+    src = folder(tmp_path / "a")
+    arc = blind_archive.pack(src, CASES, tmp_path / "archive")
+    dest = tmp_path / "cache" / src.name
+    dest.mkdir(parents=True)
+    (dest / "dahl-s0-p0-c1.json").write_text(json.dumps(result(1, ["drift"], grid=["drift", "pretension"])))
+    (dest / "dahl-s0-p0-c2.json").write_text(json.dumps(result(2, ["drift"])))
+    written, kept, differ = blind_archive.unpack(arc, tmp_path / "cache")
+    assert (written, kept, differ) == (1, 2, ["dahl-s0-p0-c1.json"])
+    kept_result = json.loads((dest / "dahl-s0-p0-c1.json").read_text())
+    assert kept_result["by_decision"]["d1"]["verdict"] == ["drift", "pretension"]  # not overwritten
