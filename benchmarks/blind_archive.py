@@ -6,8 +6,8 @@
 
 ``bench_diagnose_blind.py`` keeps each case's result in a cache folder named by its settings and the hash of
 the diagnosis's sources. A cache does not travel with a checkout, and computing seeds 0-1 again takes hours;
-so the results the README's tables come from are kept in ``benchmarks/results/`` (about 20 kB per 20 cases,
-compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
+so the results the README's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
+468 cases, compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
 ``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a partial run is refused);
 ``unpack`` puts every archived result in the cache where that case has none, so that ``--report-only`` and
 ``blind_compare.py --against SOURCES`` work without the run, and says where a cached result differs from the
