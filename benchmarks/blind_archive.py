@@ -1,6 +1,7 @@
 """The blind benchmark's results kept with the code: one compressed file per results folder, in the repository.
 
-    python benchmarks/blind_archive.py pack [--sources SOURCES] [--seed 0,1] [--cache DIR]
+    python benchmarks/blind_archive.py pack [--sources SOURCES] [--seed 0,1] [--plants 3] [--singles-only]
+                                            [--magnitude 2.5,15] [--cache DIR]
     python benchmarks/blind_archive.py unpack [--cache DIR]
     python benchmarks/blind_archive.py list
 
@@ -8,7 +9,8 @@
 the diagnosis's sources. A cache does not travel with a checkout, and computing seeds 0-1 again takes hours;
 so the results the README's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
 468 cases, compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
-``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a partial run is refused);
+``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a partial run is refused; a probe
+run of the benchmark's ``--plants``, ``--singles-only`` and ``--magnitude`` is packed with the same options);
 ``unpack`` puts every archived result in the cache where that case has none, so that ``--report-only`` and
 ``blind_compare.py --against SOURCES`` work without the run, and says where a cached result differs from the
 archived one in a verdict (a reproducibility check after a run of the same code). The archive is the
@@ -27,7 +29,17 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from bench_diagnose_blind import FAMILIES, cached_results, case_list, default_cache, results_dir  # noqa: E402
+from bench_diagnose_blind import (  # noqa: E402
+    FAMILIES,
+    MAGNITUDE,
+    NONES,
+    PAIRS,
+    PLANTS,
+    cached_results,
+    case_list,
+    default_cache,
+    results_dir,
+)
 from blind_compare import folder  # noqa: E402
 
 ARCHIVE = HERE / "results"
@@ -90,12 +102,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sources", default="", help="pack: the results folder, or its 12-digit source hash "
                                                    "(default: this code's)")
     ap.add_argument("--seed", default="0,1", help="pack: the seeds whose every case must be there (default 0,1)")
+    ap.add_argument("--plants", type=int, default=PLANTS, help=f"pack: plants per family and seed, as the run "
+                                                               f"had (default {PLANTS})")
+    ap.add_argument("--singles-only", action="store_true", help="pack: a run of the single-effect cases only")
+    ap.add_argument("--magnitude", default="", help="pack: the run's --magnitude low,high (default: the "
+                                                    "benchmark's own sizes)")
     ap.add_argument("--cache", type=Path, default=default_cache(), help="the benchmark's cache folder")
     a = ap.parse_args(argv)
     if a.what == "pack":
         seeds = [int(s) for s in a.seed.split(",") if s.strip()]
-        shape = argparse.Namespace(plants=3, pairs=3, nones=2, singles_only=False)
-        res_dir = folder(a.sources, a.cache) if a.sources else results_dir(a.cache)
+        shape = argparse.Namespace(plants=a.plants, pairs=PAIRS, nones=NONES, singles_only=a.singles_only)
+        try:
+            sizes = tuple(float(x) for x in a.magnitude.split(",")) if a.magnitude else MAGNITUDE
+        except ValueError:
+            sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
+        if len(sizes) != 2:
+            sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
+        res_dir = folder(a.sources, a.cache, sizes) if a.sources else results_dir(a.cache, magnitude=sizes)
         try:
             out = pack(res_dir, case_list(seeds, list(FAMILIES), shape))
         except ValueError as e:

@@ -27,6 +27,7 @@ import blind_lofo  # noqa: E402
 from bench_diagnose_blind import (  # noqa: E402
     DIAG_SOURCES,
     FAMILIES,
+    MAGNITUDE,
     cached_results,
     case_list,
     default_cache,
@@ -35,14 +36,15 @@ from bench_diagnose_blind import (  # noqa: E402
 )
 
 
-def folder(spec: str, cache: Path) -> Path:
-    """The results folder ``spec`` names: a folder, or the source hash of one at the benchmark's own sizes."""
+def folder(spec: str, cache: Path, magnitude: tuple[float, float] = MAGNITUDE) -> Path:
+    """The results folder ``spec`` names: a folder, or the source hash of one at the benchmark's own sizes (or at
+    the effect sizes ``magnitude``)."""
     p = Path(spec).expanduser()
     if p.is_dir():
         return p
     if not re.fullmatch(r"[0-9a-f]{12}", spec):
         sys.exit(f"{spec!r} is neither a results folder nor a 12-digit source hash")
-    here = results_dir(cache)
+    here = results_dir(cache, magnitude=magnitude)
     p = here.with_name(here.name.replace(source_hash(DIAG_SOURCES), spec))
     if not p.is_dir():
         known = sorted(d.name for d in here.parent.iterdir()) if here.parent.is_dir() else []

@@ -61,3 +61,27 @@ def test_unpack_keeps_the_cached_result_and_names_a_verdict_that_differs(tmp_pat
     assert (written, kept, differ) == (1, 2, ["dahl-s0-p0-c1.json"])
     kept_result = json.loads((dest / "dahl-s0-p0-c1.json").read_text())
     assert kept_result["by_decision"]["d1"]["verdict"] == ["drift", "pretension"]  # not overwritten
+
+
+
+def test_a_probe_run_packs_with_its_own_shape(tmp_path, monkeypatch):
+    """``pack --plants 1 --singles-only --magnitude 15,45`` finds the probe's folder and asks for its cases only."""
+    asked = {}
+    real_pack = blind_archive.pack
+
+    def recording_pack(res_dir, cases):
+        asked["dir"], asked["cases"] = res_dir, cases
+        return real_pack(folder(tmp_path / "src"), CASES, tmp_path / "results")
+
+    monkeypatch.setattr(blind_archive, "pack", recording_pack)
+    monkeypatch.setattr(blind_archive, "HERE", tmp_path / "benchmarks")  # the printed path is relative to it
+    assert blind_archive.main(["pack", "--seed", "9", "--plants", "1", "--singles-only", "--magnitude", "15,45",
+                               "--cache", str(tmp_path / "cache")]) == 0
+    assert "-m15-45-" in asked["dir"].name
+    assert len(asked["cases"]) == len(blind_archive.FAMILIES) * 8  # every single effect of one plant per family
+    assert all(len(c[4]) == 1 and c[1] == 9 and c[2] == 0 for c in asked["cases"])
+
+
+def test_pack_refuses_a_magnitude_that_is_not_two_numbers(tmp_path):
+    with pytest.raises(SystemExit, match="two numbers"):
+        blind_archive.main(["pack", "--magnitude", "15", "--cache", str(tmp_path)])
