@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             sizes = tuple(float(x) for x in a.magnitude.split(",")) if a.magnitude else MAGNITUDE
         except ValueError:
-            sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
+            sizes = ()
         if len(sizes) != 2:
             sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
         res_dir = folder(a.sources, a.cache, sizes) if a.sources else results_dir(a.cache, magnitude=sizes)

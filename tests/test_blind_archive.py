@@ -9,6 +9,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import blind_archive  # noqa: E402
+from plants import EFFECTS  # noqa: E402
 
 CASES = [("dahl", 0, 0, k, [], 0) for k in range(3)]
 
@@ -63,7 +64,6 @@ def test_unpack_keeps_the_cached_result_and_names_a_verdict_that_differs(tmp_pat
     assert kept_result["by_decision"]["d1"]["verdict"] == ["drift", "pretension"]  # not overwritten
 
 
-
 def test_a_probe_run_packs_with_its_own_shape(tmp_path, monkeypatch):
     """``pack --plants 1 --singles-only --magnitude 15,45`` finds the probe's folder and asks for its cases only."""
     asked = {}
@@ -78,10 +78,11 @@ def test_a_probe_run_packs_with_its_own_shape(tmp_path, monkeypatch):
     assert blind_archive.main(["pack", "--seed", "9", "--plants", "1", "--singles-only", "--magnitude", "15,45",
                                "--cache", str(tmp_path / "cache")]) == 0
     assert "-m15-45-" in asked["dir"].name
-    assert len(asked["cases"]) == len(blind_archive.FAMILIES) * 8  # every single effect of one plant per family
+    assert len(asked["cases"]) == len(blind_archive.FAMILIES) * len(EFFECTS)  # every single effect, one plant
     assert all(len(c[4]) == 1 and c[1] == 9 and c[2] == 0 for c in asked["cases"])
 
 
-def test_pack_refuses_a_magnitude_that_is_not_two_numbers(tmp_path):
+@pytest.mark.parametrize("sizes", ["15", "15,x", "1,2,3"])
+def test_pack_refuses_a_magnitude_that_is_not_two_numbers(tmp_path, sizes):
     with pytest.raises(SystemExit, match="two numbers"):
-        blind_archive.main(["pack", "--magnitude", "15", "--cache", str(tmp_path)])
+        blind_archive.main(["pack", "--magnitude", sizes, "--cache", str(tmp_path)])
