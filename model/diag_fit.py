@@ -88,6 +88,7 @@ log = logging.getLogger(__name__)
 
 LINEAR_FIELDS = ("aero_gain_per_kpa", "aero_deg_per_kpa", "drift_deg_s")
 GRID_CACHE_BYTES = 128 * 2 ** 20  # the starting grids' core runs kept for every thread (``Problem.core``)
+BOUND_TOL = 0.03  # of a box's width: a fitted coordinate this close to an edge sits at it (``Fit.bound_hits``)
 BRENT_MAX_ITER = 30  # a one-parameter search's iterations (``Problem._brent``)
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
@@ -209,6 +210,16 @@ class Box:
     neutral_at_lo: bool = False  # capstan ratio, sensor stage ratio: the bottom of the box means "none" (0)
     grid_like: str | None = None  # on the starting grid, take the coordinate of this (earlier) box
     fixed: bool = False  # a form's flag: held at ``lo``, not searched (pre-tension's whole-loop form)
+    wider_lo: float | None = None  # a fit ending at ``lo`` searches again down to this (``Box.widened``)
+    wider_hi: float | None = None  # ... ending at ``hi``: up to this
+
+    def widened(self, edge: str) -> Box | None:
+        """This box reaching its wider limit at ``edge`` ("lower" or "upper"); None when that edge has none."""
+        if edge == "lower" and self.wider_lo is not None:
+            return replace(self, lo=self.wider_lo, wider_lo=None)
+        if edge == "upper" and self.wider_hi is not None:
+            return replace(self, hi=self.wider_hi, wider_hi=None)
+        return None
 
     def value(self, s: float) -> float:
         s = min(max(float(s), 0.0), 1.0)
@@ -250,9 +261,9 @@ def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
         rate = np.abs(np.diff(u)) / np.where(dt > 0, dt, np.inf)
         vmax = float(np.max(rate)) if rate.size else 1.0
         vmax = max(vmax, 1e-9)
-        return [Box("rate_mm_s", 0.02 * vmax, 1.02 * vmax, log=True, neutral_at_hi=True)]
+        return [Box("rate_mm_s", 0.02 * vmax, 1.02 * vmax, log=True, neutral_at_hi=True, wider_lo=0.002 * vmax)]
     if name == "backlash":
-        return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True)]
+        return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True, wider_hi=span)]
     if name == "friction":
         return [Box("friction_scale", 0.01, 10.0, log=True), Box("friction_pivot", -1.0, 1.0)]
     if name == "capstan":  # the second form of friction (``forms_for``): the stall's zero below the log's travel
@@ -284,6 +295,11 @@ def form_supported(f: Fit) -> bool:
     grows with the tension across the log: a dead band of fixed width, which is backlash's form, not friction's,
     and the held-out test cannot tell the two apart."""
     return not any((h["parameter"], h["bound"]) == ("capstan_zero_mm", "lower") for h in f.bound_hits())
+
+
+def effect_of(field_name: str) -> str:
+    """The effect whose parameters hold ``field_name``."""
+    return next(n for n, (fs, _, _) in EFFECT_FIELDS.items() if field_name in fs)
 
 
 def _reachable(p: BoucWenParams, x: np.ndarray) -> bool:
@@ -327,8 +343,9 @@ class Fit:
     coords: dict[str, float] = field(default_factory=dict)  # search coordinate in [0, 1] per nonlinear field
     boxes: list[Box] = field(default_factory=list, repr=False)
     params_of: dict[str, int] = field(default_factory=dict)  # parameters each named effect's fitted form has
+    widened: tuple[str, ...] = ()  # fields searched again past their first limit (``Problem._search_wider``)
 
-    def bound_hits(self, tol: float = 0.03) -> list[dict]:
+    def bound_hits(self, tol: float = BOUND_TOL) -> list[dict]:
         """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width). An edge
         that means "no effect" (no limit, no stall, no second sensor stage) is a value, not a bound."""
         out = []
@@ -339,8 +356,7 @@ class Fit:
             for edge, hit, limit in (("lower", s <= tol and not b.neutral_at_lo, b.lo),
                                      ("upper", s >= 1.0 - tol and not b.neutral_at_hi, b.hi)):
                 if hit:
-                    effect = next(n for n, (fs, _, _) in EFFECT_FIELDS.items() if b.field in fs)
-                    out.append({"effect": effect, "parameter": b.field, "bound": edge, "limit": limit,
+                    out.append({"effect": effect_of(b.field), "parameter": b.field, "bound": edge, "limit": limit,
                                 "value": _jsonable(getattr(self.effects, b.field))})
         return out
 
@@ -669,20 +685,59 @@ class Problem:
             params_of[n] = sum(not b.fixed for b in form) + len(linear_fields(n))
         tm = self.split.train
 
-        def build(s: np.ndarray) -> Effects:
-            return replace(start, **{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
+        def over(boxes: list[Box]):
+            def build(s: np.ndarray) -> Effects:
+                return replace(start, **{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
 
-        def cost(s: np.ndarray) -> float:
-            eff, wp = self.solve_linear(build(s), lin)
-            return self.mse(wp, tm)
+            def cost(s: np.ndarray) -> float:
+                eff, wp = self.solve_linear(build(s), lin)
+                return self.mse(wp, tm)
+            return build, cost
 
+        build, cost = over(boxes)
         s0 = np.array([b.coord(getattr(start, b.field)) for b in boxes])
         if boxes:
             s0 = self._grid_start(boxes, s0, cost, grid_for, movers)
             s0 = self._search(boxes, s0, build, cost, lin, max_evals)
+            boxes, s0, build = self._search_wider(boxes, s0, build, cost, over, lin, max_evals)
         eff, wp = self.solve_linear(build(s0), lin)
+        first = {b.field: b for form in forms for b in form}
         return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), sum(params_of.values()),
-                   0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes, params_of)
+                   0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes, params_of,
+                   tuple(b.field for b in boxes if b != first[b.field]))
+
+    def _search_wider(self, boxes: list[Box], s0: np.ndarray, build, cost, over, lin, max_evals: int):
+        """When the search ends at an edge that only limits the effect's size (a backlash as wide as 0.4 of the
+        travel, a servo slewing at 2 % of the input's fastest rate), search again with that edge moved to its
+        wider limit: from the best of five points between the old edge and the new one, then as ``_search``.
+        The wider search is kept when it fits the training blocks better; its boxes are then the fit's, so
+        ``Fit.bound_hits`` reads the wider limits. Returns (boxes, end, build)."""
+        wide = list(boxes)
+        for i, b in enumerate(boxes):
+            edge = "lower" if s0[i] <= BOUND_TOL else "upper" if s0[i] >= 1.0 - BOUND_TOL else None
+            w = b.widened(edge) if edge else None
+            if w is not None:
+                wide[i] = w
+        if wide == boxes:
+            return boxes, s0, build
+        build2, cost2 = over(wide)
+        s1 = np.array([w.coord(b.value(x)) for b, w, x in zip(boxes, wide, s0, strict=True)])
+        best, best_c = s1, cost2(s1)
+        for i, (b, w) in enumerate(zip(boxes, wide, strict=True)):
+            if w is b:
+                continue
+            for p in np.linspace(0.0, s1[i], 6)[:-1] if w.lo != b.lo else np.linspace(s1[i], 1.0, 6)[1:]:
+                s = best.copy()
+                s[i] = p
+                c = cost2(s)
+                if c < best_c:
+                    best, best_c = s, c
+        s1 = self._search(wide, best, build2, cost2, lin, max_evals)
+        if cost2(s1) < cost(s0):
+            log.debug("searched again with wider limits (%s): kept", ", ".join(
+                w.field for w, b in zip(wide, boxes, strict=True) if w is not b))
+            return wide, s1, build2
+        return boxes, s0, build
 
     def _search(self, boxes: list[Box], s0: np.ndarray, build, cost, lin, max_evals: int) -> np.ndarray:
         """Bounded Brent (one box) or Nelder-Mead (more) from ``s0``. A search that starts from the same effects

@@ -64,7 +64,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from warpbridge.model.diag_fit import Fit, Problem, Split
+from warpbridge.model.diag_fit import Fit, Problem, Split, effect_of
 from warpbridge.model.diag_pool import FitPool
 from warpbridge.model.diag_stats import (
     PairedGain,
@@ -935,6 +935,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     notes = list(path.notes)
     for h in hits:
         notes.append(h["meaning"])
+    notes += widened_notes(cur, selected)
     by_airspeed = [{"effect": b} | r for b, r in path.kept_by_airspeed.items()]
     notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
     if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor
@@ -1093,6 +1094,19 @@ BOUND_HINTS = {  # what an edge of a search means where the generic reading does
     ("capstan_zero_mm", "upper"): "the tendon would go slack within the log's travel",
     ("sensor_stage_ratio", "upper"): "two equal lags: the sensor may have more stages, or a delay as well",
 }
+
+
+def widened_notes(fit: Fit, selected) -> list[str]:
+    """What the report says of a named effect whose search went past its first limit (``Problem._search_wider``)."""
+    out = []
+    for b in fit.boxes:
+        if b.field not in fit.widened:
+            continue
+        effect = effect_of(b.field)
+        if effect in selected:
+            out.append(f"{effect}: {b.field} fitted {getattr(fit.effects, b.field):.4g}, past the edge of its first "
+                       f"search: searched again over {b.lo:.4g}..{b.hi:.4g}")
+    return out
 
 
 def _bound_meaning(h: dict) -> str:

@@ -1081,3 +1081,36 @@ def test_an_opening_driven_beyond_the_model_costs_inf_and_an_ordinary_one_its_sq
     u_max = P.a1 * w_turn ** 2 + P.a2 * w_turn + P.a3 + abs(P.az) * 2.0
     beyond = u + (u_max - float(np.min(u[:m]))) + 5.0
     assert prob._opening_cost(P, beyond) == math.inf
+
+
+def test_a_backlash_wider_than_the_first_search_is_searched_again():
+    """A dead band of 0.55 of the travel, past the first search's 0.4: the fit ends at that edge, searches again up
+    to the whole travel, keeps the wider fit (sized within 5 %, at no edge) and the report says so; a backlash of
+    0.2 of the travel is fitted by the first search alone."""
+    from warpbridge.model.identify import central_range
+
+    t, u, _, _ = make_log(Effects(), seed=5)
+    lo, hi = central_range(u)
+    span = float(hi - lo)
+    for frac, widened in ((0.2, ()), (0.55, ("backlash_mm",))):
+        t, u, w, v = make_log(Effects(backlash_mm=frac * span), seed=5)
+        f = Problem(t, u, w, v, P, Effects()).fit(["backlash"])
+        assert f.widened == widened
+        assert f.effects.backlash_mm == pytest.approx(frac * span, rel=0.05)
+        assert f.bound_hits() == []
+    d = diagnose(t, u, w, v, nominal_model())
+    assert d.verdict == ["backlash"]
+    assert any("backlash_mm" in n and "searched again" in n for n in d.report["notes"])
+    assert d.report["bound_hits"] == []
+
+
+def test_a_slew_limit_slower_than_the_first_search_is_searched_again():
+    """A servo slewing at 1.5 % of the input's fastest rate, below the first search's 2 %: searched again down to
+    0.2 %, the wider fit kept, below the first limit and at no edge."""
+    t, u, _, _ = make_log(Effects(), seed=5)
+    first_lo = diag_fit.boxes_for("rate_limit", t, u)[0].lo
+    t, u, w, v = make_log(Effects(rate_mm_s=0.75 * first_lo), seed=5)
+    f = Problem(t, u, w, v, P, Effects()).fit(["rate_limit"])
+    assert f.widened == ("rate_mm_s",)
+    assert f.effects.rate_mm_s < first_lo
+    assert f.bound_hits() == []
