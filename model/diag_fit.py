@@ -726,7 +726,9 @@ class Problem:
         for i, (b, w) in enumerate(zip(boxes, wide, strict=True)):
             if w is b:
                 continue
-            for p in np.linspace(0.0, s1[i], 6)[:-1] if w.lo != b.lo else np.linspace(s1[i], 1.0, 6)[1:]:
+            grown_below = w.lo != b.lo  # the new part of the range: below the old edge, or above it
+            points = np.linspace(0.0, s1[i], 6)[:-1] if grown_below else np.linspace(s1[i], 1.0, 6)[1:]
+            for p in points:
                 s = best.copy()
                 s[i] = p
                 c = cost2(s)

@@ -1096,7 +1096,7 @@ BOUND_HINTS = {  # what an edge of a search means where the generic reading does
 }
 
 
-def widened_notes(fit: Fit, selected) -> list[str]:
+def widened_notes(fit: Fit, selected: tuple[str, ...] | list[str]) -> list[str]:
     """What the report says of a named effect whose search went past its first limit (``Problem._search_wider``)."""
     out = []
     for b in fit.boxes:
