@@ -24,6 +24,7 @@ TARGETS = {"single": 0.95, "pairs": 0.80, "false_alarm": 0.05, "min_closed": 0.5
 
 
 CLEAR_FACTOR = 2.0  # an effect "well above the bench misfit": its RMS on the field log at least this x the misfit
+SHORT_OF_DRAWN = 0.9  # a single effect that reached under this share of its drawn size: its size search hit its cap
 
 
 def well_above_misfit(r: dict) -> bool:
@@ -261,6 +262,15 @@ def effect_table(results: list[dict], folds: dict) -> str:
     return "\n".join(lines)
 
 
+def reached_x_noise(r: dict) -> float | None:
+    """A single-effect case's effect RMS over the noise when it fell short of the drawn size (the benchmark's
+    size search for it ended at its cap: a servo too slow to move, a lag of seconds, a friction gone), else None."""
+    if len(r["truth"]) != 1 or not r.get("noise"):
+        return None
+    reached = r["effect_rms_deg"] / r["noise"]
+    return reached if reached < SHORT_OF_DRAWN * r["magnitude_x_noise"][r["truth"][0]] else None
+
+
 def misses(results: list[dict], folds: dict | None = None, default: str = "") -> str:
     """Cases whose verdict is not the truth, each with its fold's decision (or with ``default`` for all)."""
     dk_of = {fam: dk for fam, (dk, _) in folds.items()} if folds is not None else {}
@@ -269,6 +279,8 @@ def misses(results: list[dict], folds: dict | None = None, default: str = "") ->
         v = verdict_at(r, dk_of.get(r["family"], default))
         if v != r["truth"]:
             mags = ", ".join(f"{k} {m:.1f}x noise" for k, m in r["magnitude_x_noise"].items())
+            if (reached := reached_x_noise(r)) is not None:
+                mags += f" drawn, {reached:.1f}x reached: its size search ended at its cap"
             lines.append(f"  {r['plant']:<28} truth {r['truth'] or '[]'} ({mags or 'none'}; bench misfit "
                          f"{r['bench_misfit_deg']:.3f} deg, effect RMS {r['effect_rms_deg']:.3f} deg; check log "
                          f"without the effect {r['check_rms_nominal_without_effects']:.2f} deg) -> {v or '[]'}")

@@ -79,3 +79,20 @@ def test_comparison_of_runs_without_shared_cases_says_so():
     a = [run_case("x", 0, ["friction"], {C: True})]
     b = [run_case("x", 1, ["friction"], {C: True})]
     assert blind_lofo.comparison_table(a, b, C) == "no case in both runs"
+
+
+def missed(truth: list[str], drawn: dict[str, float], effect_rms: float) -> dict:
+    r = run_case("x", 0, truth, {C: False})
+    return r | {"magnitude_x_noise": drawn, "noise": 0.05, "effect_rms_deg": effect_rms, "bench_misfit_deg": 0.1}
+
+
+def test_a_single_effect_short_of_its_drawn_size_is_marked_in_the_misses():
+    capped = missed(["rate_limit"], {"rate_limit": 20.0}, 0.05 * 8.0)
+    full = missed(["friction"], {"friction": 6.0}, 0.05 * 6.0)
+    pair = missed(["backlash", "friction"], {"backlash": 5.0, "friction": 5.0}, 0.05 * 2.0)
+    assert blind_lofo.reached_x_noise(capped) == 8.0
+    assert blind_lofo.reached_x_noise(full) is None and blind_lofo.reached_x_noise(pair) is None
+    lines = blind_lofo.misses([capped, full, pair], default=C).splitlines()
+    assert len(lines) == 3
+    assert "rate_limit 20.0x noise drawn, 8.0x reached: its size search ended at its cap" in lines[0]
+    assert "reached" not in lines[1] and "reached" not in lines[2]
