@@ -123,9 +123,10 @@ def summary_rows(results: list[dict], tags: list[str], what: dict[str, str]) -> 
         pairs = [r for r in rs if len(r["truth"]) == 2]
         nones = [r for r in rs if not r["truth"]]
         ok = [r for r in rs if r["verdict"] == r["truth"]]
+        known = rs[0]["known_error_deg"]
         misfit = [r["field_misfit_deg"] for r in nones if r["field_misfit_deg"] is not None]
-        rows.append([what[tag], f"{rs[0]['known_error_deg']:.3f}",
-                     ", ".join(f"{m:.3f}" for m in misfit) or "-",
+        over = f" ({min(misfit) / known:.2f}-{max(misfit) / known:.2f}x)" if misfit and known > 0 else ""
+        rows.append([what[tag], f"{known:.3f}", ", ".join(f"{m:.3f}" for m in misfit) + over if misfit else "-",
                      f"{sum(r['verdict'] == r['truth'] for r in singles)}/{len(singles)}",
                      f"{sum(r['verdict'] == r['truth'] for r in pairs)}/{len(pairs)}",
                      f"{sum(bool(r['verdict']) for r in nones)}/{len(nones)}", f"{len(ok)}/{len(rs)}"])
@@ -191,7 +192,7 @@ def main() -> None:
     print(f"\n{plant.name}{f' ({note})' if note else ''}: its {len(cases)} field cases of the blind benchmark, "
           "shipped default decision\n")
     print(table(summary_rows(results, tags, what),
-                ["bench model", "known error deg", "no-effect field misfit deg", "singles", "pairs",
+                ["bench model", "known error deg", "no-effect field misfit deg (x known error)", "singles", "pairs",
                  "false alarms", "all right"]))
     print("\nverdicts (truth -> per model):")
     for k, (names, _) in enumerate(cases):

@@ -34,5 +34,5 @@ def test_the_summary_counts_each_models_verdicts():
           res("draw0", 2, ["delay", "drift"], ["drift"]), res("draw1", 0, [], [], 0.12),
           res("draw1", 1, ["delay"], ["sensor_lag"]), res("draw1", 2, ["delay", "drift"], ["delay", "drift"])]
     rows = blind_bench_draws.summary_rows(rs, ["draw0", "draw1", "draw2"], {"draw0": "a", "draw1": "b"})
-    assert rows == [["a", "0.100", "0.200", "1/1", "0/1", "1/1", "1/3"],
-                    ["b", "0.100", "0.120", "0/1", "1/1", "0/1", "2/3"]]
+    assert rows == [["a", "0.100", "0.200 (2.00-2.00x)", "1/1", "0/1", "1/1", "1/3"],
+                    ["b", "0.100", "0.120 (1.20-1.20x)", "0/1", "1/1", "0/1", "2/3"]]
