@@ -1,7 +1,7 @@
 """The blind benchmark's results kept with the code: one compressed file per results folder, in the repository.
 
     python benchmarks/blind_archive.py pack [--sources SOURCES] [--seed 0,1] [--plants 3] [--singles-only]
-                                            [--magnitude 2.5,15] [--cache DIR]
+                                            [--magnitude 2.5,15] [--partial] [--cache DIR]
     python benchmarks/blind_archive.py unpack [--cache DIR]
     python benchmarks/blind_archive.py list
 
@@ -9,13 +9,19 @@
 the diagnosis's sources. A cache does not travel with a checkout, and computing seeds 0-1 again takes hours;
 so the results the README's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
 468 cases, compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
-``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a partial run is refused; a probe
-run of the benchmark's ``--plants``, ``--singles-only`` and ``--magnitude`` is packed with the same options);
-``unpack`` puts every archived result in the cache where that case has none, so that ``--report-only`` and
-``blind_compare.py --against SOURCES`` work without the run, and says where a cached result differs from the
-archived one in a verdict (a reproducibility check after a run of the same code). The archive is the
-benchmark's output, not an input of it: a run never reads it, and computes every case it has no cached
-result for. Keep the archives the README cites; git keeps the older ones.
+``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a probe run of the benchmark's
+``--plants``, ``--singles-only`` and ``--magnitude`` is packed with the same options), or with ``--partial``
+the cases there are, for a run longer than a session: the next one unpacks and the run goes on where it
+stopped. Packing keeps every case the archive already holds (a cached result replaces its archived one).
+It also adds the bench models of the packed plants to ``benchmarks/results/bench-models.jsonl.gz`` (3 kB each;
+identifying seeds 0-1's 36 plants again costs most of an hour).
+``unpack`` puts every archived result and bench model in the cache where there is none, so that
+``--report-only`` and ``blind_compare.py --against SOURCES`` work without the run, and says where a cached
+result differs from the archived one in a verdict (a reproducibility check after a run of the same code). The
+archive is the benchmark's output, not an input of it: a run never reads it, and computes every case it has no
+cached result for (a bench model is found by its bench log's key, which names the identification's sources,
+so an unpacked one is only used by the code that identified it). Keep the archives the README cites; git
+keeps the older ones.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -35,7 +42,6 @@ from bench_diagnose_blind import (  # noqa: E402
     NONES,
     PAIRS,
     PLANTS,
-    cached_results,
     case_list,
     default_cache,
     results_dir,
@@ -44,22 +50,80 @@ from blind_compare import folder  # noqa: E402
 
 ARCHIVE = HERE / "results"
 SUFFIX = ".jsonl.gz"
+MODELS = ARCHIVE / f"bench-models{SUFFIX}"  # the bench models the results were diagnosed with
+MODEL_FILE = re.compile(r"^(.+-s\d+-\d+)-[0-9a-f]{16}\.json$")
 
 
-def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE) -> Path:
+def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE, partial: bool = False) -> tuple[Path, int]:
     """Write every case of ``cases`` from ``res_dir`` to ``out_dir/<res_dir's name>.jsonl.gz`` (one JSON line
-    per case, sorted by file name, gzip without a time stamp: the same results give the same bytes)."""
-    results, missing = cached_results(cases, res_dir)
-    if missing:
-        raise ValueError(f"{len(missing)} of {len(cases)} cases have no result in {res_dir} (the first: "
-                         f"{'/'.join(map(str, missing[0][:4]))}); finish the run before packing it")
-    rows = sorted((f"{c[0]}-s{c[1]}-p{c[2]}-c{c[3]}.json", r) for c, r in zip(cases, results, strict=True))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    per case, sorted by file name, gzip without a time stamp: the same results give the same bytes); (the
+    archive, the cases it holds). A case the cache lacks is taken from that archive when it already holds it
+    (a cached result wins), so packing never drops an archived case. Every case must be there, unless
+    ``partial`` (a run that goes on in a later session: at least one case)."""
     out = out_dir / f"{res_dir.name}{SUFFIX}"
+    archived = dict(read(out)) if out.is_file() else {}
+    rows, missing = [], []
+    for c in cases:
+        name = case_file(c)
+        f = res_dir / name
+        if f.is_file():
+            rows.append((name, json.loads(f.read_text())))
+        elif name in archived:
+            rows.append((name, archived[name]))
+        else:
+            missing.append(c)
+    if (missing and not partial) or not rows:
+        raise ValueError(f"{len(missing)} of {len(cases)} cases have no result in {res_dir} (the first: "
+                         f"{'/'.join(map(str, missing[0][:4]))}); finish the run before packing it"
+                         + ("" if rows else ", or run one case of it at least"))
+    keep = {name for name, _ in rows}
+    rows += [(name, r) for name, r in archived.items() if name not in keep]  # cases of other seeds it holds
+    write_rows(out, sorted(rows))
+    return out, len(rows)
+
+
+def case_file(case: tuple) -> str:
+    """The result file of a case (family, seed, plant index, case number, ...)."""
+    return f"{case[0]}-s{case[1]}-p{case[2]}-c{case[3]}.json"
+
+
+def write_rows(out: Path, rows: list[tuple[str, dict]]) -> None:
+    """(file name, content) rows as gzipped JSON lines with no time stamp, replacing ``out`` atomically."""
+    out.parent.mkdir(parents=True, exist_ok=True)
     text = "".join(json.dumps({"file": name, "result": r}, sort_keys=True) + "\n" for name, r in rows)
-    with open(out, "wb") as fh, gzip.GzipFile(fileobj=fh, mode="wb", compresslevel=9, mtime=0) as gz:
+    tmp = out.with_name(out.name + ".part")
+    with open(tmp, "wb") as fh, gzip.GzipFile(fileobj=fh, mode="wb", compresslevel=9, mtime=0) as gz:
         gz.write(text.encode())
-    return out
+    tmp.replace(out)
+
+
+def pack_models(models_dir: Path, plants: set[str], out: Path | None = None) -> tuple[Path, int]:
+    """Add the cached bench models of ``plants`` (``<plant>-<key>.json``; the key names the bench log and the
+    identification's sources) to the models archive, keeping what it holds; (the archive, models in it)."""
+    out = out or MODELS
+    have = dict(read(out)) if out.is_file() else {}
+    for f in sorted(models_dir.glob("*.json")) if models_dir.is_dir() else []:
+        m = MODEL_FILE.match(f.name)
+        if m and m.group(1) in plants:
+            have[f.name] = f.read_text()  # its bytes, as identify wrote them
+    if have:
+        write_rows(out, sorted(have.items()))
+    return out, len(have)
+
+
+def unpack_models(archive: Path, models_dir: Path) -> int:
+    """Write the archived bench models the cache lacks; the count written (``identified_model`` then finds a
+    plant's model by its bench log's key instead of identifying it again)."""
+    models_dir.mkdir(parents=True, exist_ok=True)
+    written = 0
+    for name, model in read(archive):
+        f = models_dir / name
+        if not f.is_file():
+            tmp = f.with_suffix(".part")
+            tmp.write_text(model)
+            tmp.replace(f)
+            written += 1
+    return written
 
 
 def read(archive: Path) -> list[tuple[str, dict]]:
@@ -105,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plants", type=int, default=PLANTS, help=f"pack: plants per family and seed, as the run "
                                                                f"had (default {PLANTS})")
     ap.add_argument("--singles-only", action="store_true", help="pack: a run of the single-effect cases only")
+    ap.add_argument("--partial", action="store_true", help="pack: the cases there are (a run that a later session "
+                                                           "goes on with after unpack)")
     ap.add_argument("--magnitude", default="", help="pack: the run's --magnitude low,high (default: the "
                                                     "benchmark's own sizes)")
     ap.add_argument("--cache", type=Path, default=default_cache(), help="the benchmark's cache folder")
@@ -119,13 +185,21 @@ def main(argv: list[str] | None = None) -> int:
         if len(sizes) != 2:
             sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
         res_dir = folder(a.sources, a.cache, sizes) if a.sources else results_dir(a.cache, magnitude=sizes)
+        cases = case_list(seeds, list(FAMILIES), shape)
         try:
-            out = pack(res_dir, case_list(seeds, list(FAMILIES), shape))
+            out, held = pack(res_dir, cases, ARCHIVE, a.partial)
         except ValueError as e:
             sys.exit(str(e))
-        print(f"{out.relative_to(HERE.parent)}: {len(read(out))} cases, {out.stat().st_size / 1e3:.0f} kB")
+        asked = {case_file(c) for c in cases}
+        have = sum(name in asked for name, _ in read(out))
+        print(f"{out.relative_to(HERE.parent)}: {held} cases, {out.stat().st_size / 1e3:.0f} kB"
+              + (f"; partial: {have} of the {len(cases)} cases of seeds {a.seed}" if have < len(cases) else ""))
+        plants = {f"{c[0]}-s{c[1]}-{c[2]}" for c in cases}
+        m_out, n_models = pack_models(a.cache / "models", plants, MODELS)
+        if n_models:
+            print(f"{m_out.relative_to(HERE.parent)}: {n_models} bench models")
         return 0
-    archives = sorted(ARCHIVE.glob(f"*{SUFFIX}"))
+    archives = sorted(x for x in ARCHIVE.glob(f"*{SUFFIX}") if x != MODELS)
     if not archives:
         print(f"no archives in {ARCHIVE.relative_to(HERE.parent)}")
         return 0
@@ -134,12 +208,18 @@ def main(argv: list[str] | None = None) -> int:
         if a.what == "list":
             rows = read(arc)
             seeds = sorted({r["seed"] for _, r in rows})
-            print(f"{arc.name}: {len(rows)} cases, seeds {','.join(map(str, seeds))}")
+            print(f"{arc.name}: {len(rows)} cases, " + ", ".join(
+                f"seed {s} {sum(r['seed'] == s for _, r in rows)}" for s in seeds))
             continue
         written, kept, differ = unpack(arc, a.cache / "results")
         print(f"{arc.name}: {written} written to the cache, {kept} already there"
               + (f", {len(differ)} of them with other verdicts: {', '.join(differ[:10])}" if differ else ""))
         bad += len(differ)
+    if MODELS.is_file():
+        if a.what == "list":
+            print(f"{MODELS.name}: {len(read(MODELS))} bench models")
+        else:
+            print(f"{MODELS.name}: {unpack_models(MODELS, a.cache / 'models')} bench models written to the cache")
     return 1 if bad else 0
 
 
