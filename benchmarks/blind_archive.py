@@ -1,7 +1,8 @@
 """The blind benchmark's results kept with the code: one compressed file per results folder, in the repository.
 
     python benchmarks/blind_archive.py pack [--sources SOURCES] [--seed 0,1] [--plants 3] [--singles-only]
-                                            [--magnitude 2.5,15] [--partial] [--cache DIR]
+                                            [--magnitude 2.5,15] [--rate 500] [--partial]
+                                            [--cache DIR]
     python benchmarks/blind_archive.py unpack [--cache DIR]
     python benchmarks/blind_archive.py list
 
@@ -10,11 +11,11 @@ the diagnosis's sources. A cache does not travel with a checkout, and computing 
 so the results the README's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
 468 cases, compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
 ``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a probe run of the benchmark's
-``--plants``, ``--singles-only`` and ``--magnitude`` is packed with the same options), or with ``--partial``
+``--plants``, ``--singles-only``, ``--magnitude`` and ``--rate`` is packed with the same options), or with ``--partial``
 the cases there are, for a run longer than a session: the next one unpacks and the run goes on where it
 stopped. Packing keeps every case the archive already holds (a cached result replaces its archived one).
 It also adds the bench models of the packed plants to ``benchmarks/results/bench-models.jsonl.gz`` (3 kB each;
-identifying seeds 0-1's 36 plants again costs most of an hour).
+identifying seeds 0-1's 36 plants again took 658 s on one core).
 ``unpack`` puts every archived result and bench model in the cache where there is none, so that
 ``--report-only`` and ``blind_compare.py --against SOURCES`` work without the run, and says where a cached
 result differs from the archived one in a verdict (a reproducibility check after a run of the same code). The
@@ -37,14 +38,17 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from bench_diagnose_blind import (  # noqa: E402
+    DIAG_SOURCES,
     FAMILIES,
     MAGNITUDE,
     NONES,
     PAIRS,
     PLANTS,
+    RATE,
     case_list,
     default_cache,
     results_dir,
+    source_hash,
 )
 from blind_compare import folder  # noqa: E402
 
@@ -92,7 +96,8 @@ def write_rows(out: Path, rows: list[tuple[str, dict]]) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     text = "".join(json.dumps({"file": name, "result": r}, sort_keys=True) + "\n" for name, r in rows)
     tmp = out.with_name(out.name + ".part")
-    with open(tmp, "wb") as fh, gzip.GzipFile(fileobj=fh, mode="wb", compresslevel=9, mtime=0) as gz:
+    # the header names the archive, not the temporary file (so the same results give the same bytes)
+    with open(tmp, "wb") as fh, gzip.GzipFile(out.name, "wb", 9, fh, mtime=0) as gz:
         gz.write(text.encode())
     tmp.replace(out)
 
@@ -169,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plants", type=int, default=PLANTS, help=f"pack: plants per family and seed, as the run "
                                                                f"had (default {PLANTS})")
     ap.add_argument("--singles-only", action="store_true", help="pack: a run of the single-effect cases only")
+    ap.add_argument("--rate", type=float, default=RATE, help=f"pack: the run's --rate (default {RATE:g})")
     ap.add_argument("--partial", action="store_true", help="pack: the cases there are (a run that a later session "
                                                            "goes on with after unpack)")
     ap.add_argument("--magnitude", default="", help="pack: the run's --magnitude low,high (default: the "
@@ -184,7 +190,11 @@ def main(argv: list[str] | None = None) -> int:
             sizes = ()
         if len(sizes) != 2:
             sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
-        res_dir = folder(a.sources, a.cache, sizes) if a.sources else results_dir(a.cache, magnitude=sizes)
+        res_dir = results_dir(a.cache, rate=a.rate, magnitude=sizes)
+        if re.fullmatch(r"[0-9a-f]{12}", a.sources):  # the folder of those sources at these settings
+            res_dir = res_dir.with_name(res_dir.name.replace(source_hash(DIAG_SOURCES), a.sources))
+        elif a.sources:
+            res_dir = folder(a.sources, a.cache, sizes)
         cases = case_list(seeds, list(FAMILIES), shape)
         try:
             out, held = pack(res_dir, cases, ARCHIVE, a.partial)

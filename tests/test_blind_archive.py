@@ -42,6 +42,10 @@ def test_the_same_results_pack_to_the_same_bytes(tmp_path):
     one = blind_archive.pack(folder(tmp_path / "a"), CASES, tmp_path / "x")[0].read_bytes()
     two = blind_archive.pack(folder(tmp_path / "b"), CASES, tmp_path / "y")[0].read_bytes()
     assert one == two
+    again = blind_archive.pack(folder(tmp_path / "c"), CASES, tmp_path / "x")[0].read_bytes()  # over the first
+    assert again == one
+    # the gzip header names the archive itself (as the archives packed before did), not a temporary file
+    assert one[3] & 0x08 and one[10:one.index(b"\0", 10)] == b"d60-r500-b40-0123456789ab.jsonl"
 
 
 def test_a_run_with_cases_missing_is_not_packed(tmp_path):
