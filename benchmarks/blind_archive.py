@@ -76,6 +76,8 @@ def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE, partial: bo
             rows.append((name, archived[name]))
         else:
             missing.append(c)
+    if not cases:
+        raise ValueError("no cases asked for")
     if (missing and not partial) or not rows:
         raise ValueError(f"{len(missing)} of {len(cases)} cases have no result in {res_dir} (the first: "
                          f"{'/'.join(map(str, missing[0][:4]))}); finish the run before packing it"
@@ -91,7 +93,7 @@ def case_file(case: tuple) -> str:
     return f"{case[0]}-s{case[1]}-p{case[2]}-c{case[3]}.json"
 
 
-def write_rows(out: Path, rows: list[tuple[str, dict]]) -> None:
+def write_rows(out: Path, rows: list[tuple[str, dict | str]]) -> None:
     """(file name, content) rows as gzipped JSON lines with no time stamp, replacing ``out`` atomically."""
     out.parent.mkdir(parents=True, exist_ok=True)
     text = "".join(json.dumps({"file": name, "result": r}, sort_keys=True) + "\n" for name, r in rows)
@@ -131,8 +133,8 @@ def unpack_models(archive: Path, models_dir: Path) -> int:
     return written
 
 
-def read(archive: Path) -> list[tuple[str, dict]]:
-    """(file name, result) per archived case."""
+def read(archive: Path) -> list[tuple[str, dict | str]]:
+    """(file name, content) per archived row: a case's result, or a bench model's text."""
     with gzip.open(archive, "rt") as fh:
         rows = [json.loads(line) for line in fh if line.strip()]
     return [(row["file"], row["result"]) for row in rows]
