@@ -1,7 +1,8 @@
 """The blind benchmark's results kept with the code: one compressed file per results folder, in the repository.
 
     python benchmarks/blind_archive.py pack [--sources SOURCES] [--seed 0,1] [--plants 3] [--singles-only]
-                                            [--magnitude 2.5,15] [--rate 500] [--partial]
+                                            [--magnitude 2.5,15] [--rate 500] [--duration 60]
+                                            [--partial]
                                             [--cache DIR]
     python benchmarks/blind_archive.py unpack [--cache DIR]
     python benchmarks/blind_archive.py list
@@ -10,12 +11,13 @@
 the diagnosis's sources. A cache does not travel with a checkout, and computing seeds 0-1 again takes hours;
 so the results the README's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
 468 cases, compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
-``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a probe run of the benchmark's
-``--plants``, ``--singles-only``, ``--magnitude`` and ``--rate`` is packed with the same options), or with ``--partial``
-the cases there are, for a run longer than a session: the next one unpacks and the run goes on where it
-stopped. Packing keeps every case the archive already holds (a cached result replaces its archived one).
-It also adds the bench models of the packed plants to ``benchmarks/results/bench-models.jsonl.gz`` (3 kB each;
-identifying seeds 0-1's 36 plants again took 658 s on one core).
+``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a probe run of the
+benchmark's ``--plants``, ``--singles-only``, ``--magnitude``, ``--rate`` and ``--duration`` is packed with
+the same options), or with ``--partial`` the cases there are, for a run longer than a session: the next one
+unpacks and the run goes on where it stopped. Packing keeps every case the archive already holds (a cached
+result replaces its archived one). It also adds the bench models of the packed plants to
+``benchmarks/results/bench-models.jsonl.gz`` (3 kB each; identifying seeds 0-1's 36 plants again took 658 s
+on one core).
 ``unpack`` puts every archived result and bench model in the cache where there is none, so that
 ``--report-only`` and ``blind_compare.py --against SOURCES`` work without the run, and says where a cached
 result differs from the archived one in a verdict (a reproducibility check after a run of the same code). The
@@ -40,6 +42,7 @@ sys.path.insert(0, str(HERE))
 from bench_diagnose_blind import (  # noqa: E402
     DIAG_SOURCES,
     FAMILIES,
+    FIELD_S,
     MAGNITUDE,
     NONES,
     PAIRS,
@@ -177,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
                                                                f"had (default {PLANTS})")
     ap.add_argument("--singles-only", action="store_true", help="pack: a run of the single-effect cases only")
     ap.add_argument("--rate", type=float, default=RATE, help=f"pack: the run's --rate (default {RATE:g})")
+    ap.add_argument("--duration", type=float, default=FIELD_S,
+                    help=f"pack: the run's --duration (default {FIELD_S:g})")
     ap.add_argument("--partial", action="store_true", help="pack: the cases there are (a run that a later session "
                                                            "goes on with after unpack)")
     ap.add_argument("--magnitude", default="", help="pack: the run's --magnitude low,high (default: the "
@@ -192,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
             sizes = ()
         if len(sizes) != 2:
             sys.exit(f"--magnitude takes two numbers, low,high (got {a.magnitude!r})")
-        res_dir = results_dir(a.cache, rate=a.rate, magnitude=sizes)
+        res_dir = results_dir(a.cache, a.duration, a.rate, magnitude=sizes)
         if re.fullmatch(r"[0-9a-f]{12}", a.sources):  # the folder of those sources at these settings
             res_dir = res_dir.with_name(res_dir.name.replace(source_hash(DIAG_SOURCES), a.sources))
         elif a.sources:
