@@ -61,12 +61,15 @@ MODELS = ARCHIVE / f"bench-models{SUFFIX}"  # the bench models the results were 
 MODEL_FILE = re.compile(r"^(.+-s\d+-\d+)-[0-9a-f]{16}\.json$")
 
 
-def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE, partial: bool = False) -> tuple[Path, int]:
+def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE,
+         partial: bool = False) -> tuple[Path, int, int]:
     """Write every case of ``cases`` from ``res_dir`` to ``out_dir/<res_dir's name>.jsonl.gz`` (one JSON line
     per case, sorted by file name, gzip without a time stamp: the same results give the same bytes); (the
-    archive, the cases it holds). A case the cache lacks is taken from that archive when it already holds it
-    (a cached result wins), so packing never drops an archived case. Every case must be there, unless
-    ``partial`` (a run that goes on in a later session: at least one case)."""
+    archive, the cases it holds, how many of ``cases`` it lacks). A case the cache lacks is taken from that
+    archive when it already holds it (a cached result wins), so packing never drops an archived case. Every
+    case must be there, unless ``partial`` (a run that goes on in a later session: at least one case)."""
+    if not cases:
+        raise ValueError("no cases asked for")
     out = out_dir / f"{res_dir.name}{SUFFIX}"
     archived = dict(read(out)) if out.is_file() else {}
     rows, missing = [], []
@@ -79,8 +82,6 @@ def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE, partial: bo
             rows.append((name, archived[name]))
         else:
             missing.append(c)
-    if not cases:
-        raise ValueError("no cases asked for")
     if (missing and not partial) or not rows:
         raise ValueError(f"{len(missing)} of {len(cases)} cases have no result in {res_dir} (the first: "
                          f"{'/'.join(map(str, missing[0][:4]))}); finish the run before packing it"
@@ -88,7 +89,7 @@ def pack(res_dir: Path, cases: list[tuple], out_dir: Path = ARCHIVE, partial: bo
     keep = {name for name, _ in rows}
     rows += [(name, r) for name, r in archived.items() if name not in keep]  # cases of other seeds it holds
     write_rows(out, sorted(rows))
-    return out, len(rows)
+    return out, len(rows), len(missing)
 
 
 def case_file(case: tuple) -> str:
@@ -125,15 +126,17 @@ def unpack_models(archive: Path, models_dir: Path) -> int:
     """Write the archived bench models the cache lacks; the count written (``identified_model`` then finds a
     plant's model by its bench log's key instead of identifying it again)."""
     models_dir.mkdir(parents=True, exist_ok=True)
-    written = 0
-    for name, model in read(archive):
-        f = models_dir / name
-        if not f.is_file():
-            tmp = f.with_suffix(".part")
-            tmp.write_text(model)
-            tmp.replace(f)
-            written += 1
-    return written
+    return sum(write_new(models_dir / name, model) for name, model in read(archive))
+
+
+def write_new(f: Path, text: str) -> bool:
+    """Write ``text`` to ``f`` (through a temporary file) unless ``f`` exists; whether it wrote."""
+    if f.is_file():
+        return False
+    tmp = f.with_suffix(".part")
+    tmp.write_text(text)
+    tmp.replace(f)
+    return True
 
 
 def read(archive: Path) -> list[tuple[str, dict | str]]:
@@ -151,16 +154,12 @@ def unpack(archive: Path, results_root: Path) -> tuple[int, int, list[str]]:
     written, kept, differ = 0, 0, []
     for name, result in read(archive):
         f = dest / name
-        if f.is_file():
-            kept += 1
-            have = json.loads(f.read_text())
-            if verdicts(have) != verdicts(result):
-                differ.append(name)
+        if write_new(f, json.dumps(result)):
+            written += 1
             continue
-        tmp = f.with_suffix(".part")
-        tmp.write_text(json.dumps(result))
-        tmp.replace(f)
-        written += 1
+        kept += 1
+        if verdicts(json.loads(f.read_text())) != verdicts(result):
+            differ.append(name)
     return written, kept, differ
 
 
@@ -204,13 +203,11 @@ def main(argv: list[str] | None = None) -> int:
             res_dir = folder(a.sources, a.cache, sizes)
         cases = case_list(seeds, list(FAMILIES), shape)
         try:
-            out, held = pack(res_dir, cases, ARCHIVE, a.partial)
+            out, held, lacking = pack(res_dir, cases, ARCHIVE, a.partial)
         except ValueError as e:
             sys.exit(str(e))
-        asked = {case_file(c) for c in cases}
-        have = sum(name in asked for name, _ in read(out))
         print(f"{out.relative_to(HERE.parent)}: {held} cases, {out.stat().st_size / 1e3:.0f} kB"
-              + (f"; partial: {have} of the {len(cases)} cases of seeds {a.seed}" if have < len(cases) else ""))
+              + (f"; partial: {len(cases) - lacking} of the {len(cases)} cases of seeds {a.seed}" if lacking else ""))
         plants = {f"{c[0]}-s{c[1]}-{c[2]}" for c in cases}
         m_out, n_models = pack_models(a.cache / "models", plants, MODELS)
         if n_models:

@@ -29,8 +29,8 @@ def folder(root: Path, name: str = "d60-r500-b40-0123456789ab") -> Path:
 
 def test_a_packed_folder_unpacks_to_the_same_results(tmp_path):
     src = folder(tmp_path / "a")
-    arc, held = blind_archive.pack(src, CASES, tmp_path / "archive")
-    assert held == 3
+    arc, held, lacking = blind_archive.pack(src, CASES, tmp_path / "archive")
+    assert (held, lacking) == (3, 0)
     assert arc.name == f"{src.name}.jsonl.gz"
     written, kept, differ = blind_archive.unpack(arc, tmp_path / "b")
     assert (written, kept, differ) == (3, 0, [])
@@ -58,7 +58,7 @@ def test_a_run_with_cases_missing_is_not_packed(tmp_path):
 
 def test_unpack_keeps_the_cached_result_and_names_a_verdict_that_differs(tmp_path):
     src = folder(tmp_path / "a")
-    arc, _ = blind_archive.pack(src, CASES, tmp_path / "archive")
+    arc, _, _ = blind_archive.pack(src, CASES, tmp_path / "archive")
     dest = tmp_path / "cache" / src.name
     dest.mkdir(parents=True)
     (dest / "dahl-s0-p0-c1.json").write_text(json.dumps(result(1, ["drift"], grid=["drift", "pretension"])))
@@ -99,12 +99,12 @@ def test_a_partial_run_packs_what_is_there_and_a_later_pack_keeps_it(tmp_path):
     src = folder(tmp_path / "a")
     (src / "dahl-s0-p0-c1.json").unlink()
     (src / "dahl-s0-p0-c2.json").unlink()
-    arc, held = blind_archive.pack(src, CASES, tmp_path / "archive", partial=True)
-    assert held == 1 and [n for n, _ in blind_archive.read(arc)] == ["dahl-s0-p0-c0.json"]
+    arc, held, lacking = blind_archive.pack(src, CASES, tmp_path / "archive", partial=True)
+    assert (held, lacking) == (1, 2) and [n for n, _ in blind_archive.read(arc)] == ["dahl-s0-p0-c0.json"]
     later = folder(tmp_path / "b", src.name)  # another machine's cache: the run's other cases
     (later / "dahl-s0-p0-c0.json").unlink()
-    arc2, held2 = blind_archive.pack(later, CASES, tmp_path / "archive")
-    assert arc2 == arc and held2 == 3  # complete now: c0 from the archive, c1-c2 from the cache
+    arc2, held2, lacking2 = blind_archive.pack(later, CASES, tmp_path / "archive")
+    assert arc2 == arc and (held2, lacking2) == (3, 0)  # complete now: c0 from the archive, c1-c2 from the cache
     assert [n for n, _ in blind_archive.read(arc)] == [f"dahl-s0-p0-c{k}.json" for k in range(3)]
 
 
