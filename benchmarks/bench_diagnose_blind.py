@@ -92,8 +92,8 @@ IDENT_SOURCES = ["model/identify.py", "model/kernels.py", "model/boucwen.py", "m
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
                                 "sitl/sheath.py", "model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
                                 "model/diag_where.py", "model/diagnose.py", "model/diag_pool.py",
-                                "model/model_error.py", "model/effects.py", "model/plant.py", "model/input_check.py",
-                                "benchmarks/truth_lugre.py",
+                                "model/diag_transfer.py", "model/model_error.py", "model/effects.py", "model/plant.py",
+                                "model/input_check.py", "benchmarks/truth_lugre.py",
                                 "bridge/commands/diagnose.py", "bridge/commands/identify.py",
                                 "bridge/commands/predict.py",
                                 "benchmarks/bench_diagnose_blind.py"]

@@ -74,6 +74,7 @@ from warpbridge.model.diag_stats import (
     paired_gain,
     prewhiten,
 )
+from warpbridge.model.diag_transfer import Transfer, raised_floor, transfer
 from warpbridge.model.diag_where import Cells, cells, gap_closed, split
 from warpbridge.model.effects import (
     CAPSTAN_FIELDS,
@@ -881,6 +882,61 @@ def set_up(t, u, w, airspeed, model: ModelFile, opt: DiagnoseOptions,
     return Setup(prob, ex, noise, e_m, skipped, z0, side, em)
 
 
+CARRY_ROUNDS = 4  # decisions re-made at most, each with the floor raised by what the correction did not carry
+
+
+@dataclass
+class Carry:
+    """Whether the bench's model-error correction carries to this log (``model.diag_transfer``): the same
+    problem without the correction, the correction's bench gain, and its gain on the nominal here."""
+
+    bare: Problem
+    bench_gain: float
+    nominal: Transfer
+
+    def of(self, ex: Explorer, fit: Fit) -> Transfer:
+        """The correction's gain here given ``fit``'s effects."""
+        return transfer(ex.w, self.bare.predict(fit.effects), fit.w_pred, ex.prob.split.chunks, self.bench_gain)
+
+
+def carry_check(ex: Explorer, em: ErrorModel | None, slack_side: float) -> Carry | None:
+    """The transfer check of the correction ``em`` on the explorer's log, whose nominal takes up its slack
+    on ``slack_side`` (None without a correction)."""
+    prob = ex.prob
+    if em is None or prob.error_model is None or not (
+            math.isfinite(em.rms_before_deg) and math.isfinite(em.rms_after_deg)):
+        return None
+    bare = Problem(prob.t, prob.u, prob.w, prob.airspeed, prob.params, prob.base, prob.z0, split=prob.split,
+                   error_model=None, slack_side=slack_side)
+    bench_gain = em.rms_before_deg ** 2 - em.rms_after_deg ** 2
+    nominal = transfer(ex.w, bare.predict(ex.base), ex.nominal.w_pred, prob.split.chunks, bench_gain)
+    return Carry(bare, bench_gain, nominal)
+
+
+def decide_carried(ex: Explorer, d: Decision, max_effects: int, carry: Carry | None) -> tuple[Path, dict | None]:
+    """``decide``, then, when the correction's gain on the nominal falls significantly short of the bench's,
+    the same with the floor raised by what it did not carry given the verdict's effects (the smaller of
+    the two shortfalls, both significant), until the verdict stops raising it. ``ex.floor2`` is left as
+    it was; the second value says what was raised (None: the correction carries, or there is none)."""
+    path = decide(ex, d, max_effects)
+    if carry is None or not carry.nominal.short:
+        return path, None
+    base, extra = ex.floor2, 0.0
+    tr = carry.nominal
+    try:
+        for _ in range(CARRY_ROUNDS):
+            tr = carry.of(ex, path.fit) if path.selected else carry.nominal
+            up = raised_floor(carry.nominal, tr)
+            if up <= extra:
+                break
+            extra = up
+            ex.floor2 = base + extra
+            path = decide(ex, d, max_effects)
+    finally:
+        ex.floor2 = base
+    return path, {"raised_by_ms": extra, "nominal": carry.nominal.to_dict(), "verdict": tr.to_dict()}
+
+
 def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
              progress: Callable[[str, int, int], None] | None = None) -> Diagnosis:
     """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None).
@@ -902,24 +958,30 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     indep = input_independence(prewhiten(u[analysed]), ra[1:])
 
     alternatives = []
+    carry = carry_check(ex, em, side)
     with ex.workers():
-        path = decide(ex, opt.decision, opt.max_effects)
+        path, carried = decide_carried(ex, opt.decision, opt.max_effects, carry)
         for k, d in enumerate(opt.alternatives):
             if progress:
                 progress("alternative decisions", k, len(opt.alternatives))
-            alt = path if d == opt.decision else decide(ex, d, opt.max_effects)
+            alt = path if d == opt.decision else decide_carried(ex, d, opt.max_effects, carry)[0]
             alternatives.append({"decision": d.to_dict(), "verdict": list(alt.named),
                                  "effects": {n: alt.fit.values([n])[n] for n in alt.named},
                                  "kept_unnamed": sorted(alt.unnamed),
                                  "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
                                  "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
+    e_known = e_m  # the known error the report judges by: the bench's, or raised where it did not carry
+    if carried is not None and carried["raised_by_ms"] > 0:  # the rest of the report on the raised floor
+        ex.floor2 = floor2 = floor2 + carried["raised_by_ms"]
+        e_known = math.sqrt(e_m ** 2 + carried["raised_by_ms"])
+        where = split(t, u, r0, cl, analysed, noise, e_known)
     selected = list(path.named)
     cur = path.fit
     rounds, ambiguities, chosen_conf = _main_rounds(ex, path, opt)
     w_aug = cur.w_pred if selected else w_nom
     r1 = w - w_aug
 
-    shrink = split(t, u, r0, cl, sp.score, noise, e_m, r_after=r1)
+    shrink = split(t, u, r0, cl, sp.score, noise, e_known, r_after=r1)
     mse0, mse1 = prob.mse(w_nom, sp.score), prob.mse(w_aug, sp.score)
     shrinkage = {
         "heldout_rms_before_deg": math.sqrt(mse0), "heldout_rms_after_deg": math.sqrt(mse1),
@@ -933,6 +995,14 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         chosen_conf[h["effect"]] = chosen_conf.get(h["effect"], 0.0) * BOUND_CONFIDENCE
     cand = _candidate_table(names, skipped, rounds, path, chosen_conf, cur, nominal, hits)
     notes = list(path.notes)
+    if carried is not None and carried["raised_by_ms"] > 0:
+        nom = carry.nominal
+        notes.append(f"the bench's model-error correction does not carry to this log: it lowers the squared error "
+                     f"by {nom.bench_gain:.2g} deg^2 on the bench but {nom.field_gain:.2g} here "
+                     f"(p={nom.p_value:.2g}); the part it did not carry is model error the bench could not see, "
+                     f"so the known error is taken as {math.sqrt(e_m ** 2 + carried['raised_by_ms']):.3f} deg "
+                     f"instead of {e_m:.3f} (a second bench log of another realisation of the input measures "
+                     f"it: identify --check)")
     for h in hits:
         notes.append(h["meaning"])
     notes += widened_notes(cur, selected)
@@ -963,6 +1033,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
         "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
         "model_error_from_check": _check_note(model, noise, opt.use_model_error),
+        "model_error_carried": _carry_note(carry, carried, e_m),
         "decision": opt.decision.to_dict(),
         "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
                                               "clamped to the reachable band, refined on the prediction error)"}
@@ -1238,6 +1309,18 @@ def _candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, cho
 
 def _fmt_params(d: dict) -> str:
     return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
+
+
+def _carry_note(carry: Carry | None, carried: dict | None, e_m: float) -> dict | None:
+    """The report's reading of the transfer check (None without a correction to check)."""
+    if carry is None:
+        return None
+    out = {"nominal": carry.nominal.to_dict(), "short": carry.nominal.short, "raised_by_ms": 0.0,
+           "known_error_deg": e_m}
+    if carried is not None:
+        out |= {"verdict": carried["verdict"], "raised_by_ms": carried["raised_by_ms"],
+                "known_error_deg": math.sqrt(e_m ** 2 + carried["raised_by_ms"])}
+    return out
 
 
 def _check_note(model: ModelFile, noise: float, use_model_error: bool) -> dict | None:

@@ -14,7 +14,7 @@ from helpers import spread_friction
 from warpbridge.bridge.cli import main as cli
 from warpbridge.bridge.commands.logfile import write_csv_atomic
 from warpbridge.bridge.commands.modelio import load_model, save_model
-from warpbridge.model import diag_fit
+from warpbridge.model import diag_fit, diag_transfer
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain
@@ -30,7 +30,7 @@ from warpbridge.model.diagnose import (
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.initial_state import OPENING_MAX
-from warpbridge.model.model_error import bench_error_model
+from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
 
@@ -565,9 +565,38 @@ def test_a_misfit_the_bench_already_had_is_not_an_effect():
     judged_on_bench = diagnose(t, u, w, v, mf)
     assert judged_on_bench.verdict == []
     assert judged_on_bench.report["model_error_model"]["used"]
+    # the correction carries: it gains here what it gained on the bench, and the floor stays the bench's
+    carried = judged_on_bench.report["model_error_carried"]
+    assert not carried["short"] and carried["raised_by_ms"] == 0.0
     # against the bare model the same log does show a lag: what the bench knew is what is discounted
     bare = diagnose(t, u, w, v, mf, DiagnoseOptions(use_model_error=False))
     assert "sensor_lag" in bare.verdict
+    assert bare.report["model_error_carried"] is None
+
+
+def _claiming_model(before: float, after: float) -> ModelFile:
+    """A model whose correction claims to take the bench's error from ``before`` to ``after`` (deg RMS,
+    cross-validated) but adds nothing: a correction learned on one input realisation that another does not
+    share."""
+    em = ErrorModel(6.0, 4.0, 10.0, 25.0, ("level",), np.zeros(4), rms_before_deg=before, rms_after_deg=after,
+                    noise_deg=NOISE, samples=10000)
+    return ModelFile(params=P, fit=FitQuality(train_rms_deg=before, heldout_rms_deg=before, noise_deg=NOISE),
+                     model_error=em)
+
+
+def test_a_misfit_within_what_the_correction_did_not_carry_is_not_named(monkeypatch):
+    mf = _claiming_model(0.25, NOISE)
+    t, u, w, v = make_log(BENCH_LAG, seed=21)  # the lag's misfit: about 0.15 deg RMS
+    d = diagnose(t, u, w, v, mf)
+    carried = d.report["model_error_carried"]
+    assert carried["short"] and carried["nominal"]["field_gain_ms"] == pytest.approx(0.0, abs=1e-12)
+    assert carried["raised_by_ms"] == pytest.approx(0.25 ** 2 - NOISE ** 2)
+    assert d.verdict == []
+    assert d.report["floor_deg"] == pytest.approx(0.25, rel=0.05)
+    assert any("does not carry" in n for n in d.report["notes"])
+    # the same log judged on the bench's claim alone names the lag
+    monkeypatch.setattr(diag_transfer, "TRANSFER_ALPHA", 0.0)
+    assert diagnose(t, u, w, v, mf).verdict == ["sensor_lag"]
 
 
 def test_what_changed_since_the_bench_is_named_over_a_large_bench_misfit():

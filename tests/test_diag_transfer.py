@@ -1,0 +1,80 @@
+"""The transfer check: does the bench's model-error correction carry to the field log?"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from warpbridge.model.diag_stats import chunk_ids
+from warpbridge.model.diag_transfer import TRANSFER_ALPHA, Transfer, hac_mean_se, raised_floor, transfer
+
+FS = 500.0
+
+
+def _field(gain_here: float, seed: int = 0, seconds: float = 40.0):
+    """A log whose bare model misses by a structured error the corrected model removes to ``gain_here``'s
+    extent (the drop of the squared error), with noise; chunks as diagnose scores them."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / FS)
+    miss = 0.2 * np.sin(2 * np.pi * 0.7 * t) * np.sign(np.sin(2 * np.pi * 0.13 * t))
+    w = 5.0 + 0.03 * rng.standard_normal(t.size)
+    w_bare = w - miss
+    # the corrected model removes the share of the miss whose squared error drop is gain_here
+    full = float(np.mean(miss ** 2))
+    keep = 1.0 - math.sqrt(max(1.0 - gain_here / full, 0.0))
+    w_corr = w_bare + keep * miss
+    chunks = chunk_ids(np.ones(t.size, bool), t, 0.25)
+    return w, w_bare, w_corr, chunks, full
+
+
+def test_a_correction_that_gains_here_what_it_gained_on_the_bench_carries():
+    w, wb, wc, ch, full = _field(0.015)
+    tr = transfer(w, wb, wc, ch, bench_gain=0.015)
+    assert tr.field_gain == pytest.approx(0.015, rel=0.05)
+    assert not tr.short and tr.shortfall < 0.002
+
+
+def test_a_correction_that_gains_a_fraction_here_falls_short_by_the_difference():
+    w, wb, wc, ch, full = _field(0.004)
+    tr = transfer(w, wb, wc, ch, bench_gain=0.015)
+    assert tr.short and tr.p_value < TRANSFER_ALPHA
+    assert tr.shortfall == pytest.approx(0.011, rel=0.1)
+
+
+def test_gaining_more_here_than_on_the_bench_is_no_shortfall():
+    w, wb, wc, ch, full = _field(0.02)
+    tr = transfer(w, wb, wc, ch, bench_gain=0.005)
+    assert tr.shortfall == 0.0 and not tr.short and tr.p_value > 0.5
+
+
+def test_too_few_chunks_or_a_broken_prediction_is_never_short():
+    w, wb, wc, ch, _ = _field(0.0)
+    few = np.where(ch < 3, ch, -1)
+    assert not transfer(w, wb, wc, few, bench_gain=0.05).short
+    wc = wc.copy()
+    wc[100] = np.nan
+    assert not transfer(w, wb, wc, ch, bench_gain=0.05).short
+
+
+def test_the_standard_error_widens_with_the_series_memory():
+    rng = np.random.default_rng(4)
+    white = rng.standard_normal(4000)
+    assert hac_mean_se(white) == pytest.approx(1.0 / math.sqrt(4000), rel=0.15)
+    ar = np.zeros(4000)
+    for i in range(1, ar.size):
+        ar[i] = 0.8 * ar[i - 1] + white[i]
+    # an AR(1) of 0.8: the mean's variance is (1 + 0.8) / (1 - 0.8) = 9 times the white one's (Bartlett gives less)
+    assert hac_mean_se(ar) > 2.0 * float(np.std(ar)) / math.sqrt(ar.size)
+    assert hac_mean_se(np.ones(1)) == math.inf
+
+
+def test_the_floor_rises_by_the_smaller_shortfall_only_when_both_are_significant():
+    short_big = Transfer(0.05, 0.01, 0.002, 1e-9)
+    short_small = Transfer(0.05, 0.03, 0.002, 1e-6)
+    carried = Transfer(0.05, 0.049, 0.002, 0.3)
+    assert raised_floor(short_big, short_small) == pytest.approx(0.02)
+    assert raised_floor(short_small, short_big) == pytest.approx(0.02)
+    assert raised_floor(short_big, carried) == 0.0
+    assert raised_floor(carried, short_big) == 0.0
