@@ -13,9 +13,10 @@ from warpbridge.model.diag_transfer import TRANSFER_ALPHA, Transfer, hac_mean_se
 FS = 500.0
 
 
-def _field(gain_here: float, seed: int = 0, seconds: float = 40.0):
+def _field(gain_here: float, seed: int = 0, seconds: float = 40.0, jitter: float = 0.0):
     """A log whose bare model misses by a structured error the corrected model removes to ``gain_here``'s
-    extent (the drop of the squared error), with noise; chunks as diagnose scores them."""
+    extent (the drop of the squared error); ``jitter`` (deg) is what the correction adds of its own, a
+    slowly varying error that makes the gain vary from chunk to chunk; chunks as diagnose scores them."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / FS)
     miss = 0.2 * np.sin(2 * np.pi * 0.7 * t) * np.sign(np.sin(2 * np.pi * 0.13 * t))
@@ -25,6 +26,9 @@ def _field(gain_here: float, seed: int = 0, seconds: float = 40.0):
     full = float(np.mean(miss ** 2))
     keep = 1.0 - math.sqrt(max(1.0 - gain_here / full, 0.0))
     w_corr = w_bare + keep * miss
+    if jitter:
+        slow = np.convolve(rng.standard_normal(t.size), np.ones(200) / np.sqrt(200), mode="same")
+        w_corr = w_corr + jitter * slow
     chunks = chunk_ids(np.ones(t.size, bool), t, 0.25)
     return w, w_bare, w_corr, chunks, full
 
@@ -55,7 +59,21 @@ def test_too_few_chunks_or_a_broken_prediction_is_never_short():
     assert not transfer(w, wb, wc, few, bench_gain=0.05).short
     wc = wc.copy()
     wc[100] = np.nan
-    assert not transfer(w, wb, wc, ch, bench_gain=0.05).short
+    broken = transfer(w, wb, wc, ch, bench_gain=0.05)
+    assert math.isnan(broken.field_gain) and broken.p_value == 1.0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_gain_that_varies_from_chunk_to_chunk_is_judged_by_its_spread(seed):
+    # the correction's own slow error (0.03 deg) makes the gain vary along the log: the same gain as the bench's
+    # is not short, and a bench gain within a standard error or two of it is not either
+    w, wb, wc, ch, _ = _field(0.010, seed=seed, jitter=0.03)
+    same = transfer(w, wb, wc, ch, bench_gain=0.010 - 0.03 ** 2)
+    assert same.se > 1e-4 and not same.short
+    near = transfer(w, wb, wc, ch, bench_gain=same.field_gain + 1.5 * same.se)
+    assert not near.short and 0.01 < near.p_value < 0.2
+    far = transfer(w, wb, wc, ch, bench_gain=same.field_gain + 5 * same.se)
+    assert far.short
 
 
 def test_the_standard_error_widens_with_the_series_memory():
