@@ -6,9 +6,11 @@ That error is measured on one realisation of the bench input; on a rig whose mem
 correction holds, another realisation (the field) can show much more of it, and an effect is then named
 for what is only the model's own error. The correction's gain can be measured on the field itself: the
 drop of the squared error from the bare model to the corrected one, here, against the drop the bench's
-cross-validation measured. When the field shows significantly less (one-sided, the scored chunks'
-means with Bartlett-weighted autocovariance), the part that did not carry is model error the bench
-could not see, and the floor an effect must clear is raised by it.
+cross-validation measured. When the field shows significantly less (one-sided, on the scored chunks'
+means: their standard error from their effective number, ``diag_stats.effective_n``, and Student's t
+on that number less one, since so few correlated means understate their own memory), the part that
+did not carry is model error the bench could not see, and the floor an effect must clear is raised by
+it. The bench's gain is taken as exact: MODEL.json keeps no spread of it.
 
 An effect changes the residual the correction works on, so the drop is measured twice: on the nominal
 (the screen: the check runs only when that drop is short) and on the verdict's fitted effects (the
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from warpbridge.model.diag_stats import acf
+from warpbridge.model.diag_stats import effective_n
 
 TRANSFER_ALPHA = 0.001  # level of the one-sided test that the field shows less of the correction's gain
 
@@ -55,22 +57,14 @@ class Transfer:
                 "p_value": self.p_value}
 
 
-def hac_mean_se(x: np.ndarray) -> float:
-    """Standard error of the mean of a series, with Bartlett weights up to its first non-positive
-    autocorrelation (as ``paired_gain`` weighs its residual)."""
+def mean_se(x: np.ndarray) -> tuple[float, float]:
+    """Standard error of the mean of a correlated series and the degrees of freedom it is worth (its
+    effective number of independent samples less one); (inf, 0) for fewer than two."""
     x = np.asarray(x, dtype=np.float64)
-    n = x.size
-    if n < 2:
-        return math.inf
-    rho = acf(x, max(min(n // 4, n - 1), 1))
-    lag_max = 0
-    for k in range(1, rho.size):
-        if rho[k] <= 0.0:
-            break
-        lag_max = k
-    k = np.arange(1, lag_max + 1)
-    factor = 1.0 + 2.0 * float(np.sum((1.0 - k / (lag_max + 1.0)) * rho[1:lag_max + 1]))
-    return math.sqrt(max(float(np.var(x)) * factor, 0.0) / n)
+    if x.size < 2:
+        return math.inf, 0.0
+    n_eff = effective_n(x)
+    return math.sqrt(float(np.var(x)) / n_eff), max(n_eff - 1.0, 1.0)
 
 
 def transfer(w: np.ndarray, w_bare: np.ndarray, w_corrected: np.ndarray, chunks: np.ndarray,
@@ -86,10 +80,10 @@ def transfer(w: np.ndarray, w_bare: np.ndarray, w_corrected: np.ndarray, chunks:
     counts = np.bincount(chunks[chunks >= 0])
     means = sums[labels] / counts[labels]
     field_gain = float(np.sum(sums[labels]) / np.sum(counts[labels]))
-    se = hac_mean_se(means)
+    se, dof = mean_se(means)
     if not (se > 0 and math.isfinite(se)):
         return Transfer(bench_gain, field_gain, se, 0.0 if field_gain < bench_gain else 1.0)
-    p = float(stats.norm.sf((bench_gain - field_gain) / se))
+    p = float(stats.t.sf((bench_gain - field_gain) / se, dof))
     return Transfer(bench_gain, field_gain, se, p)
 
 

@@ -888,20 +888,29 @@ CARRY_ROUNDS = 4  # decisions re-made at most, each with the floor raised by wha
 @dataclass
 class Carry:
     """Whether the bench's model-error correction carries to this log (``model.diag_transfer``): the same
-    problem without the correction, the correction's bench gain, and its gain on the nominal here."""
+    problem without the correction, the correction's bench gain, its gain on the nominal here, and what
+    the known error already holds beyond the bench's (deg^2: a check log of another input measured it)."""
 
     bare: Problem
     bench_gain: float
     nominal: Transfer
+    measured_ms: float = 0.0
 
     def of(self, ex: Explorer, fit: Fit) -> Transfer:
         """The correction's gain here given ``fit``'s effects."""
         return transfer(ex.w, self.bare.predict(fit.effects), fit.w_pred, ex.prob.split.chunks, self.bench_gain)
 
+    def raise_for(self, ex: Explorer, path: Path) -> tuple[float, Transfer]:
+        """What the floor rises by (deg^2) for ``path``'s verdict, beyond what the known error already
+        holds, and the correction's gain given the verdict's effects."""
+        tr = self.of(ex, path.fit) if path.selected else self.nominal
+        return max(raised_floor(self.nominal, tr) - self.measured_ms, 0.0), tr
 
-def carry_check(ex: Explorer, em: ErrorModel | None, slack_side: float) -> Carry | None:
+
+def carry_check(ex: Explorer, em: ErrorModel | None, slack_side: float, measured_ms: float = 0.0) -> Carry | None:
     """The transfer check of the correction ``em`` on the explorer's log, whose nominal takes up its slack
-    on ``slack_side`` (None without a correction)."""
+    on ``slack_side`` (None without a correction); ``measured_ms`` is what the known error already holds
+    beyond the bench's (``identify --check``): a shortfall raises the floor only past it."""
     prob = ex.prob
     if em is None or prob.error_model is None or not (
             math.isfinite(em.rms_before_deg) and math.isfinite(em.rms_after_deg)):
@@ -910,31 +919,43 @@ def carry_check(ex: Explorer, em: ErrorModel | None, slack_side: float) -> Carry
                    error_model=None, slack_side=slack_side)
     bench_gain = em.rms_before_deg ** 2 - em.rms_after_deg ** 2
     nominal = transfer(ex.w, bare.predict(ex.base), ex.nominal.w_pred, prob.split.chunks, bench_gain)
-    return Carry(bare, bench_gain, nominal)
+    return Carry(bare, bench_gain, nominal, max(measured_ms, 0.0))
 
 
 def decide_carried(ex: Explorer, d: Decision, max_effects: int, carry: Carry | None) -> tuple[Path, dict | None]:
     """``decide``, then, when the correction's gain on the nominal falls significantly short of the bench's,
     the same with the floor raised by what it did not carry given the verdict's effects (the smaller of
-    the two shortfalls, both significant), until the verdict stops raising it. ``ex.floor2`` is left as
-    it was; the second value says what was raised (None: the correction carries, or there is none)."""
+    the two shortfalls, both significant), until the raise a verdict asks for is the one it was decided
+    at. When a verdict asks for less than its floor, the lower floor is tried: its verdict is taken if it
+    is the same one; else the higher floor's stands (the verdict that names less). ``ex.floor2`` is left
+    as it was; the second value says what was raised and whether it settled (None: the correction
+    carries, or there is none)."""
     path = decide(ex, d, max_effects)
     if carry is None or not carry.nominal.short:
         return path, None
-    base, extra = ex.floor2, 0.0
-    tr = carry.nominal
+    base, extra, settled = ex.floor2, 0.0, False
     try:
         for _ in range(CARRY_ROUNDS):
-            tr = carry.of(ex, path.fit) if path.selected else carry.nominal
-            up = raised_floor(carry.nominal, tr)
-            if up <= extra:
+            up, tr = carry.raise_for(ex, path)
+            if math.isclose(up, extra, rel_tol=1e-9, abs_tol=1e-15):
+                settled = True
                 break
-            extra = up
-            ex.floor2 = base + extra
-            path = decide(ex, d, max_effects)
+            ex.floor2 = base + up
+            lower = decide(ex, d, max_effects)
+            if up < extra:  # the verdict asks for less than the floor it was decided at
+                if lower.named == path.named:
+                    path, extra = lower, up
+                    up, tr = carry.raise_for(ex, path)
+                    settled = math.isclose(up, extra, rel_tol=1e-9, abs_tol=1e-15)
+                break
+            path, extra = lower, up
+        else:
+            up, tr = carry.raise_for(ex, path)
+            settled = math.isclose(up, extra, rel_tol=1e-9, abs_tol=1e-15)
     finally:
         ex.floor2 = base
-    return path, {"raised_by_ms": extra, "nominal": carry.nominal.to_dict(), "verdict": tr.to_dict()}
+    return path, {"raised_by_ms": extra, "settled": settled, "nominal": carry.nominal.to_dict(),
+                  "verdict": tr.to_dict()}
 
 
 def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
@@ -958,22 +979,25 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     indep = input_independence(prewhiten(u[analysed]), ra[1:])
 
     alternatives = []
-    carry = carry_check(ex, em, side)
+    # what a check log already put in the known error beyond the bench's: the shortfall raises it only past that
+    measured = e_m ** 2 - bench_known_error(model, noise, opt.use_model_error) ** 2
+    carry = carry_check(ex, em, side, measured)
     with ex.workers():
         path, carried = decide_carried(ex, opt.decision, opt.max_effects, carry)
         for k, d in enumerate(opt.alternatives):
             if progress:
                 progress("alternative decisions", k, len(opt.alternatives))
-            alt = path if d == opt.decision else decide_carried(ex, d, opt.max_effects, carry)[0]
+            alt, alt_carried = (path, carried) if d == opt.decision else decide_carried(ex, d, opt.max_effects, carry)
             alternatives.append({"decision": d.to_dict(), "verdict": list(alt.named),
+                                 "floor_raised_by_ms": alt_carried["raised_by_ms"] if alt_carried else 0.0,
                                  "effects": {n: alt.fit.values([n])[n] for n in alt.named},
                                  "kept_unnamed": sorted(alt.unnamed),
                                  "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
                                  "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
-    e_known = e_m  # the known error the report judges by: the bench's, or raised where it did not carry
-    if carried is not None and carried["raised_by_ms"] > 0:  # the rest of the report on the raised floor
-        ex.floor2 = floor2 = floor2 + carried["raised_by_ms"]
-        e_known = math.sqrt(e_m ** 2 + carried["raised_by_ms"])
+    raised = carried["raised_by_ms"] if carried is not None else 0.0
+    e_known = math.sqrt(e_m ** 2 + raised)  # the known error the report judges by: raised where it did not carry
+    if raised > 0:  # the rest of the report on the raised floor
+        ex.floor2 = floor2 = floor2 + raised
         where = split(t, u, r0, cl, analysed, noise, e_known)
     selected = list(path.named)
     cur = path.fit
@@ -995,14 +1019,18 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         chosen_conf[h["effect"]] = chosen_conf.get(h["effect"], 0.0) * BOUND_CONFIDENCE
     cand = _candidate_table(names, skipped, rounds, path, chosen_conf, cur, nominal, hits)
     notes = list(path.notes)
-    if carried is not None and carried["raised_by_ms"] > 0:
+    if raised > 0:
         nom = carry.nominal
         notes.append(f"the bench's model-error correction does not carry to this log: it lowers the squared error "
                      f"by {nom.bench_gain:.2g} deg^2 on the bench but {nom.field_gain:.2g} here "
                      f"(p={nom.p_value:.2g}); the part it did not carry is model error the bench could not see, "
-                     f"so the known error is taken as {math.sqrt(e_m ** 2 + carried['raised_by_ms']):.3f} deg "
+                     f"so the known error is taken as {e_known:.3f} deg "
                      f"instead of {e_m:.3f} (a second bench log of another realisation of the input measures "
                      f"it: identify --check)")
+        if not carried["settled"]:
+            notes.append("the raise did not settle: the verdict asks for a different raise than the one it was "
+                         "decided at, and the lower raise gives another verdict; the verdict of the higher one is "
+                         "kept (the stricter floor)")
     for h in hits:
         notes.append(h["meaning"])
     notes += widened_notes(cur, selected)
@@ -1033,7 +1061,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
         "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
         "model_error_from_check": _check_note(model, noise, opt.use_model_error),
-        "model_error_carried": _carry_note(carry, carried, e_m),
+        "model_error_carried": _carry_note(carry, carried, e_known),
         "decision": opt.decision.to_dict(),
         "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
                                               "clamped to the reachable band, refined on the prediction error)"}
@@ -1214,6 +1242,7 @@ def _main_rounds(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
         for j in judged:
             j.confidence = 0.0
             j.ambiguous_with_best = False
+            j.share = ex.share(cur, j.gain.gain)  # the round may have been judged on a floor raised since
         if not acc:
             if k < len(order) and order[k] in path.together:  # entered as a pair: its test given the other
                 j = next(j for j in judged if j.name == order[k])
@@ -1311,15 +1340,17 @@ def _fmt_params(d: dict) -> str:
     return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
 
 
-def _carry_note(carry: Carry | None, carried: dict | None, e_m: float) -> dict | None:
-    """The report's reading of the transfer check (None without a correction to check)."""
+def _carry_note(carry: Carry | None, carried: dict | None, e_known: float) -> dict | None:
+    """The report's reading of the transfer check, with the known error it leaves (None without a correction
+    to check)."""
     if carry is None:
         return None
     out = {"nominal": carry.nominal.to_dict(), "short": carry.nominal.short, "raised_by_ms": 0.0,
-           "known_error_deg": e_m}
+           "known_error_deg": e_known}
+    if carry.measured_ms > 0:
+        out["already_measured_ms"] = carry.measured_ms
     if carried is not None:
-        out |= {"verdict": carried["verdict"], "raised_by_ms": carried["raised_by_ms"],
-                "known_error_deg": math.sqrt(e_m ** 2 + carried["raised_by_ms"])}
+        out |= {k: carried[k] for k in ("verdict", "raised_by_ms", "settled")}
     return out
 
 

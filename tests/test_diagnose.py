@@ -15,6 +15,7 @@ from warpbridge.bridge.cli import main as cli
 from warpbridge.bridge.commands.logfile import write_csv_atomic
 from warpbridge.bridge.commands.modelio import load_model, save_model
 from warpbridge.model import diag_fit, diag_transfer
+from warpbridge.model import diagnose as diagnose_module
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.diag_fit import Problem, make_split
 from warpbridge.model.diag_stats import paired_gain
@@ -22,6 +23,7 @@ from warpbridge.model.diag_where import PHASES, phase_labels
 from warpbridge.model.diagnose import (
     DECISION_GRID,
     DiagnoseOptions,
+    decide_carried,
     diagnose,
     shared_latency_start,
     tension_band,
@@ -597,6 +599,70 @@ def test_a_misfit_within_what_the_correction_did_not_carry_is_not_named(monkeypa
     # the same log judged on the bench's claim alone names the lag
     monkeypatch.setattr(diag_transfer, "TRANSFER_ALPHA", 0.0)
     assert diagnose(t, u, w, v, mf).verdict == ["sensor_lag"]
+
+
+def test_a_shortfall_a_check_log_already_measured_is_not_counted_twice():
+    # identify --check scored the model on another input and found the error the correction does not carry:
+    # the known error holds it already, and the transfer check raises the floor only past it
+    mf = _claiming_model(0.25, NOISE)
+    mf.fit.extra["check"] = {"known_error_corrected_deg": 0.25, "known_error_bare_deg": 0.25, "log": "check.csv"}
+    t, u, w, v = make_log(BENCH_LAG, seed=21)
+    d = diagnose(t, u, w, v, mf)
+    carried = d.report["model_error_carried"]
+    assert carried["short"] and carried["already_measured_ms"] == pytest.approx(0.25 ** 2)
+    assert carried["raised_by_ms"] == pytest.approx(0.0, abs=1e-12) and carried["settled"]
+    assert d.report["model_error_from_check"]["set_it"]
+    assert d.report["floor_deg"] == pytest.approx(math.hypot(0.25, NOISE), rel=0.05)  # not 0.25 twice over
+    assert d.verdict == []
+
+
+class _ScriptedCarry:
+    """A transfer check whose verdicts ask for scripted raises (``asks``: named effects -> deg^2)."""
+
+    def __init__(self, asks: dict[tuple, float]):
+        self.nominal = diag_transfer.Transfer(0.05, 0.0, 0.001, 1e-12)  # short
+        self.asks = asks
+
+    def raise_for(self, ex, path):
+        return self.asks[path.named], self.nominal
+
+
+def _scripted_decide(monkeypatch, verdicts: dict[float, tuple]):
+    """``decide`` giving, at each raise of the floor above 1.0 (deg^2), a scripted verdict."""
+    def fake(ex, d, max_effects):
+        return SimpleNamespace(named=verdicts[round(ex.floor2 - 1.0, 9)])
+    monkeypatch.setattr(diagnose_module, "decide", fake)
+    return SimpleNamespace(floor2=1.0)
+
+
+def test_a_verdict_that_asks_for_less_than_its_floor_is_decided_again_on_the_lower_one(monkeypatch):
+    # two effects at the bench floor ask for 0.5; at 0.5 one is named, and it asks for only 0.2: at 0.2 the
+    # same one is named, so the raise settles at 0.2, not at the 0.5 it went through
+    ex = _scripted_decide(monkeypatch, {0.0: ("a", "b"), 0.5: ("a",), 0.2: ("a",)})
+    path, out = decide_carried(ex, None, 3, _ScriptedCarry({("a", "b"): 0.5, ("a",): 0.2}))
+    assert path.named == ("a",) and out["raised_by_ms"] == pytest.approx(0.2) and out["settled"]
+    assert ex.floor2 == 1.0
+
+
+def test_a_raise_that_does_not_settle_keeps_the_stricter_floor_and_says_so(monkeypatch):
+    # at the lower raise the two effects come back, which ask for the higher one: no raise is consistent
+    ex = _scripted_decide(monkeypatch, {0.0: ("a", "b"), 0.5: ("a",), 0.2: ("a", "b")})
+    path, out = decide_carried(ex, None, 3, _ScriptedCarry({("a", "b"): 0.5, ("a",): 0.2}))
+    assert path.named == ("a",) and out["raised_by_ms"] == pytest.approx(0.5) and not out["settled"]
+
+
+def test_the_last_round_s_verdict_is_checked_too(monkeypatch):
+    # each verdict asks for more than the one before: after the last round the raise has not settled
+    asks = {("a", "b", "c", "d", "e"): 0.1, ("a", "b", "c", "d"): 0.2, ("a", "b", "c"): 0.3, ("a", "b"): 0.4,
+            ("a",): 0.5}
+    ex = _scripted_decide(monkeypatch, {0.0: ("a", "b", "c", "d", "e"), 0.1: ("a", "b", "c", "d"),
+                                        0.2: ("a", "b", "c"), 0.3: ("a", "b"), 0.4: ("a",)})
+    path, out = decide_carried(ex, None, 5, _ScriptedCarry(asks))
+    assert path.named == ("a",) and out["raised_by_ms"] == pytest.approx(0.4) and not out["settled"]
+    # with a round to spare it settles where the verdict asks for the floor it was decided at
+    asks[("a",)] = 0.4
+    path, out = decide_carried(ex, None, 5, _ScriptedCarry(asks))
+    assert out["raised_by_ms"] == pytest.approx(0.4) and out["settled"]
 
 
 def test_what_changed_since_the_bench_is_named_over_a_large_bench_misfit():
