@@ -62,7 +62,13 @@ from bench_diagnose_blind import (  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
 from warpbridge.bridge.commands.modelio import load_model  # noqa: E402
-from warpbridge.model.diagnose import DiagnoseOptions, decide, set_up  # noqa: E402
+from warpbridge.model.diagnose import (  # noqa: E402
+    DiagnoseOptions,
+    bench_known_error,
+    carry_check,
+    decide_carried,
+    set_up,
+)
 
 CLASSES = ("search", "test", "log")
 
@@ -108,9 +114,14 @@ def examine(res: dict, workers: int, cache: Path) -> dict:
     fc = field_case(plant, case_seed, tuple(names), args.duration, args.rate, args.magnitude)
     lg = run_log(plant, fc.t, fc.u, fc.airspeed, fc.spec, fc.noise, fc.f_seed)
     opt = DiagnoseOptions(workers=workers)
-    ex = set_up(lg.t, lg.u, lg.w, lg.airspeed, model, opt).ex
+    su = set_up(lg.t, lg.u, lg.w, lg.airspeed, model, opt)
+    ex = su.ex
+    # decided as diagnose decides: with the transfer check, and the miss classified on the floor it leaves
+    measured = su.e_m ** 2 - bench_known_error(model, su.noise, opt.use_model_error) ** 2
+    carry = carry_check(ex, su.error_model, su.slack_side, measured)
     with ex.workers():
-        path = decide(ex, opt.decision, opt.max_effects)
+        path, carried = decide_carried(ex, opt.decision, opt.max_effects, carry)
+        ex.floor2 += carried["raised_by_ms"] if carried else 0.0
         out = classify(ex, opt.decision, path.fit, true_fit(ex, tuple(names)), tuple(names))
     return {"plant": res["plant"], "family": res["family"], "case": k, "truth": sorted(names),
             "verdict": sorted(path.named), "cached_verdict": res["verdict"]} | out
