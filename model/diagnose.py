@@ -166,6 +166,10 @@ class Decision:
 # test cannot tell them apart (``stall_as_play``): its zero more than the travel's span below the travel
 STALL_AS_PLAY_GROWTH = 2.0
 
+# the first round's candidates (largest held-out gain first) that each lead a pair entering together
+# (``enter_together``)
+TOGETHER_LEADS = 3
+
 # a small grid around the default, for ``alternatives`` (how the verdict depends on the decision)
 DECISION_GRID: tuple[Decision, ...] = tuple(
     Decision(a, s, g, p, m) for m in (0.0, 0.03) for p in (False, True) for a in (0.001, 0.01, 0.05)
@@ -812,15 +816,16 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
 
 def enter_together(ex: Explorer, d: Decision, judged: list[Judged]) -> tuple[Judged, Judged, PairedGain] | None:
     """Two effects that hide each other, when no effect alone passes the test: the unexplained one leaves
-    slow, structured error that weakens the evidence for the other. The first round's best candidate (or its
-    runner-up, when that explains at least half as much) and a second effect enter together when the pair
-    passes the test against the nominal, the second passes it against the first alone (as in round 2), and
-    the first passes it against the second alone (as in the backward pass). Returns (first, second, the
-    first's gain given the second) or None."""
-    leads = sorted((j for j in judged if j.gain.gain > 0), key=lambda j: -j.penalised)
-    # the runner-up leads too when it explains nearly as much (as the second round's beam): with no effect
-    # significant alone, which of the two leads is a toss-up
-    for lead in leads[:1] + [j for j in leads[1:2] if j.gain.gain >= 0.5 * leads[0].gain.gain]:
+    slow, structured error that weakens the evidence for the other. Each of the first round's
+    ``TOGETHER_LEADS`` candidates of largest held-out gain leads in turn, and it and a second effect enter
+    together when the pair passes the test against the nominal, the second passes it against the first
+    alone (as in round 2), and the first passes it against the second alone (as in the backward pass).
+    Returns (first, second, the first's gain given the second) or None."""
+    # led by the held-out gain, not the penalised one: with nothing significant alone, the penalty for a
+    # candidate's parameters says little about which of two hidden effects it is, and the gain says how
+    # much of the log it explains
+    leads = sorted((j for j in judged if j.gain.gain > 0), key=lambda j: -j.gain.gain)
+    for lead in leads[:TOGETHER_LEADS]:
         seconds = sorted((j for j in ex.round((lead.name,))
                           if ex.admits(d, lead.fit, j.fit, j.gain) and ex.admits(d, ex.nominal, j.fit)),
                          key=lambda j: -j.penalised)

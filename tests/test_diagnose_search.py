@@ -12,6 +12,7 @@ import numpy as np
 
 from warpbridge.model.diag_fit import Fit, make_split
 from warpbridge.model.diagnose import (
+    TOGETHER_LEADS,
     Decision,
     DiagnoseOptions,
     Explorer,
@@ -133,10 +134,29 @@ def test_two_effects_that_hide_each_other_enter_under_a_near_runner_up_lead():
     assert ex.leads == ["friction", "pretension"]
 
 
-def test_a_runner_up_under_half_the_leads_gain_does_not_lead():
-    ex = PairExplorer({"pretension": [judged("aero_load", 0.3, passes=True, names=("pretension", "aero_load"))]})
-    assert enter_together(ex, None, [judged("friction", 0.45), judged("pretension", 0.2)]) is None
-    assert ex.leads == ["friction"]
+def test_the_leads_are_ranked_by_held_out_gain_not_by_the_penalised_one():
+    """With nothing significant alone, the parameter penalty says little about which hidden effect a
+    candidate is: the drift, third by the penalised gain but first by the held-out gain, leads first,
+    and a candidate whose gain is not positive never leads."""
+    ex = PairExplorer({"drift": [judged("pretension", 0.3, passes=True, names=("drift", "pretension"))]})
+    first = judged("aero_load", 0.2)
+    first.penalised = 0.5
+    second = judged("delay", 0.15)
+    second.penalised = 0.4
+    third = judged("drift", 0.35)
+    third.penalised = 0.1
+    out = enter_together(ex, None, [first, second, third, judged("backlash", 0.0)])
+    assert out is not None
+    assert (out[0].name, out[1].name) == ("drift", "pretension")
+    assert ex.leads == ["drift"]
+
+
+def test_no_more_than_the_set_number_of_candidates_lead():
+    ex = PairExplorer({"delay": [judged("aero_load", 0.3, passes=True, names=("delay", "aero_load"))]})
+    cands = [judged("friction", 0.45), judged("pretension", 0.4), judged("drift", 0.3), judged("delay", 0.2),
+             judged("backlash", 0.0)]
+    assert enter_together(ex, None, cands) is None
+    assert ex.leads == ["friction", "pretension", "drift"][:TOGETHER_LEADS]
 
 
 class ImitatorProblem(SoakedProblem):
