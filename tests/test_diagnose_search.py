@@ -12,7 +12,6 @@ import numpy as np
 
 from warpbridge.model.diag_fit import Fit, make_split
 from warpbridge.model.diagnose import (
-    TOGETHER_LEADS,
     Decision,
     DiagnoseOptions,
     Explorer,
@@ -136,8 +135,7 @@ def test_two_effects_that_hide_each_other_enter_under_a_near_runner_up_lead():
 
 def test_the_leads_are_ranked_by_held_out_gain_not_by_the_penalised_one():
     """With nothing significant alone, the parameter penalty says little about which hidden effect a
-    candidate is: the drift, third by the penalised gain but first by the held-out gain, leads first,
-    and a candidate whose gain is not positive never leads."""
+    candidate is: the drift, third by the penalised gain but first by the held-out gain, leads first."""
     ex = PairExplorer({"drift": [judged("pretension", 0.3, passes=True, names=("drift", "pretension"))]})
     first = judged("aero_load", 0.2)
     first.penalised = 0.5
@@ -145,18 +143,25 @@ def test_the_leads_are_ranked_by_held_out_gain_not_by_the_penalised_one():
     second.penalised = 0.4
     third = judged("drift", 0.35)
     third.penalised = 0.1
-    out = enter_together(ex, None, [first, second, third, judged("backlash", 0.0)])
+    out = enter_together(ex, None, [first, second, third])
     assert out is not None
     assert (out[0].name, out[1].name) == ("drift", "pretension")
     assert ex.leads == ["drift"]
 
 
-def test_no_more_than_the_set_number_of_candidates_lead():
+def test_no_more_than_three_candidates_lead():
+    """The fourth candidate by held-out gain does not lead, though its pair would pass."""
     ex = PairExplorer({"delay": [judged("aero_load", 0.3, passes=True, names=("delay", "aero_load"))]})
-    cands = [judged("friction", 0.45), judged("pretension", 0.4), judged("drift", 0.3), judged("delay", 0.2),
-             judged("backlash", 0.0)]
+    cands = [judged("friction", 0.45), judged("pretension", 0.4), judged("drift", 0.3), judged("delay", 0.2)]
     assert enter_together(ex, None, cands) is None
-    assert ex.leads == ["friction", "pretension", "drift"][:TOGETHER_LEADS]
+    assert ex.leads == ["friction", "pretension", "drift"]
+
+
+def test_a_candidate_that_explains_nothing_does_not_lead():
+    """A candidate whose held-out gain is not positive never leads, though its pair would pass."""
+    ex = PairExplorer({"backlash": [judged("aero_load", 0.3, passes=True, names=("backlash", "aero_load"))]})
+    assert enter_together(ex, None, [judged("friction", 0.45), judged("backlash", 0.0)]) is None
+    assert ex.leads == ["friction"]
 
 
 class ImitatorProblem(SoakedProblem):
