@@ -118,6 +118,17 @@ def test_noise_floor_estimate():
     assert noise_floor(w) == pytest.approx(0.03, rel=0.1)
 
 
+@pytest.mark.parametrize("sigma", [0.025, 0.03, 0.035, 0.04])
+def test_noise_floor_holds_on_a_quantised_sensor(sigma):
+    # an ADC step near the noise: the second differences are multiples of the step and their median jumps by it
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 60, 1 / 500)
+    clean = 5 + 3 * np.sin(2 * np.pi * 0.7 * t) + np.sin(2 * np.pi * 2.3 * t)
+    step = 0.03
+    w = np.round((clean + sigma * rng.standard_normal(t.size)) / step) * step
+    assert noise_floor(w) == pytest.approx(float(np.std(w - clean)), rel=0.03)
+
+
 def test_path_compression_keeps_every_reversal_and_changes_no_output():
     u = filtered_random(T, 1.0, 2.5, offset=4.5, seed=9)
     idx = compress_path(u, 17)
