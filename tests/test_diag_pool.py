@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -64,7 +65,9 @@ def test_a_pool_whose_workers_die_fits_on_in_this_process(caplog):
     expected = [job() for job in _problem(seed=6).fit_jobs(("friction",))]
     with FitPool(prob, 2) as pool:
         for p in list(pool._executor._processes.values()):
-            os.kill(p.pid, signal.SIGKILL)
+            # once one worker dies the executor's manager thread may end and reap the others first
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(p.pid, signal.SIGKILL)
             p.join()
         with caplog.at_level(logging.WARNING, logger="warpbridge.model.diag_pool"):
             futures = [pool.submit(job) for job in jobs]
