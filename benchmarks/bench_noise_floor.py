@@ -95,7 +95,7 @@ def main() -> None:
         for what in new:
             rows.append([f"{rate:g} Hz", what, len(new[what]), *spread(new[what]), *spread(old[what])])
         print(f"{rate:g} Hz done", file=sys.stderr)
-    print(f"noise floor estimate / the measurement error added (RMS), seeds {args.seed}, families "
+    print(f"noise floor estimate / the standard deviation of the measurement error added, seeds {args.seed}, families "
           f"{', '.join(families)}: {PLANTS} plants each, their bench log ({BENCH_S:g} s) and three field logs "
           f"({FIELD_S:g} s)")
     head = ["rate", "logs", "n", "median", "p5-p95", "range", "off > 5%"]
