@@ -115,15 +115,22 @@ SCORE_PATTERN = (1, 4, 6, 9)  # of 10 blocks: 40 % scored, spread over the log, 
 SPEED_WINDOW_S = 0.05  # input speed is measured over this span (robust to a stepped, quantised command)
 
 
-def block_speeds(t: np.ndarray, u: np.ndarray, fs: float, pos: np.ndarray, n_blocks: int,
-                 after: np.ndarray) -> np.ndarray:
-    """Peak input speed (mm/s) of each block: the 99th percentile of |u(t + h) - u(t)| / h, h about
-    ``SPEED_WINDOW_S`` (``fs`` samples per second); 0 for a block without samples."""
+def input_speed(t: np.ndarray, u: np.ndarray, fs: float) -> np.ndarray:
+    """|u(t + h) - u(t)| / h per sample (mm/s), h about ``SPEED_WINDOW_S`` (``fs`` samples per second); 0 on
+    the last samples."""
     n = t.size
     k = max(1, int(round(SPEED_WINDOW_S * fs)))
     speed = np.zeros(n)
     if n > k:
         speed[:-k] = np.abs(u[k:] - u[:-k]) / np.maximum(t[k:] - t[:-k], 1e-12)
+    return speed
+
+
+def block_speeds(t: np.ndarray, u: np.ndarray, fs: float, pos: np.ndarray, n_blocks: int,
+                 after: np.ndarray) -> np.ndarray:
+    """Peak input speed (mm/s) of each block: the 99th percentile of ``input_speed``; 0 for a block
+    without samples."""
+    speed = input_speed(t, u, fs)
     out = np.zeros(n_blocks)
     for b in range(n_blocks):
         sel = after & (pos == b)

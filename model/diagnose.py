@@ -65,6 +65,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from warpbridge.model.diag_fit import Fit, Problem, Split, effect_of
+from warpbridge.model.diag_left import left_over, left_over_note
 from warpbridge.model.diag_pool import FitPool
 from warpbridge.model.diag_stats import (
     PairedGain,
@@ -1044,6 +1045,9 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor
         notes += whole_loop_notes(selected, cur.effects)
     notes += [airspeed_note(b) for b in by_airspeed]
+    left = left_over(t, u, r1, sp, floor2, opt.decision.min_gain, airspeed)
+    if (left_note := left_over_note(left, bool(selected))) is not None:
+        notes.append(left_note)
     residual_is_noise = white.passed and indep.passed
     if not selected and not residual_is_noise:
         notes.append("the residual is structured but no effect explains a significant, material share of it: "
@@ -1082,6 +1086,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "kept_unnamed": {n: {"fitted": cur.values([n])[n]} | v for n, v in path.unnamed.items()},
         "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
+        "left_over": left,
         "alternatives": alternatives,
         "split": {"scheme": "10 blocks, 4 scored (2, 5, 7, 10 unless the two where the command moves fastest "
                             "would then be on the same side)", "scored_blocks": [b + 1 for b in sp.pattern],
