@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from warpbridge.bridge.commands.diagnose_plot import plot_diagnosis
 from warpbridge.model.boucwen import BoucWenParams, inverse
 from warpbridge.model.diag_fit import make_split
 from warpbridge.model.diag_left import left_over, left_over_note
@@ -91,7 +92,7 @@ def fast_excursion_log(seed: int = 5):
     raise AssertionError("no placement left the excursion in a scored block")
 
 
-def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies():
+def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_path):
     t, u, tc, sp = fast_excursion_log()
     speed = np.abs(np.gradient(u, t))
     near = np.abs(t - tc) < 0.5
@@ -106,3 +107,5 @@ def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies():
     assert "faster motion" in lo["beyond_training"]
     assert any("moves faster there" in n for n in d.report["notes"])
     assert any("moves faster there" in line for line in d.report["summary"])
+    plot_diagnosis(tmp_path / "r.png", d)  # the figure marks that block and shows its window
+    assert (tmp_path / "r.png").stat().st_size > 10_000

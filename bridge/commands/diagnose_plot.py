@@ -67,6 +67,9 @@ def plot_diagnosis(path: str | os.PathLike, d: Diagnosis, title: str = "") -> No
     for a, b, kind in d.split.blocks:
         if kind == "score":
             ax.axvspan(t[a], t[b - 1], color="C0", alpha=0.08)
+    left = rep.get("left_over")
+    if left and left["mostly"]:  # the scored block that holds most of what the verdict leaves
+        ax.axvspan(*left["block_s"], color="C1", alpha=0.2, label="most of what is left")
     ax.axhline(rep["noise_deg"], color="0.3", ls="--", lw=0.8)
     ax.set_title("residual RMS over 0.25 s (shaded: scored blocks)")
     ax.set_xlabel("t (s)")
@@ -83,14 +86,23 @@ def plot_diagnosis(path: str | os.PathLike, d: Diagnosis, title: str = "") -> No
     ax.legend(fontsize=8, markerscale=8)
     ax = axes[1, 1]
     a, b, _ = next(((a, b, kind) for a, b, kind in d.split.blocks if kind == "score"), (0, t.size, ""))
+    window = "a scored window"
+    if left and left["mostly"]:
+        a, b = int(np.searchsorted(t, left["block_s"][0])), int(np.searchsorted(t, left["block_s"][1])) + 1
+        window = "the scored block holding most of what is left"
     span = min(b, a + int(5.0 * (t.size - 1) / max(t[-1] - t[0], 1e-9)))
+    if left and left["mostly"] and span < b:  # a 5 s window about the block's largest residual
+        half = (span - a) // 2
+        peak = a + int(np.argmax(np.abs(r1[a:b])))
+        a = max(a, min(peak - half, b - (span - a)))
+        span = a + 2 * half
     sl = slice(a, span)
     ax.plot(t[sl], w[sl], color="0.6", lw=0.8, label="measured")
     ax.plot(t[sl], d.w_nominal[sl], color="C3", lw=0.9, label="nominal")
     ax.plot(t[sl], d.w_augmented[sl], color="C2", lw=0.9, label="augmented")
     ax.set_xlabel("t (s)")
     ax.set_ylabel("warp (deg)")
-    ax.set_title("a scored window")
+    ax.set_title(window)
     ax.legend(fontsize=8)
     ax = axes[1, 2]
     ax.plot(t, r0, color="C3", lw=0.5, label="nominal")
