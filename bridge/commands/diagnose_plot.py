@@ -91,11 +91,10 @@ def plot_diagnosis(path: str | os.PathLike, d: Diagnosis, title: str = "") -> No
         a, b = int(np.searchsorted(t, left["block_s"][0])), int(np.searchsorted(t, left["block_s"][1])) + 1
         window = "the scored block holding most of what is left"
     span = min(b, a + int(5.0 * (t.size - 1) / max(t[-1] - t[0], 1e-9)))
-    if left and left["mostly"] and span < b:  # a 5 s window about the block's largest residual
-        half = (span - a) // 2
-        peak = a + int(np.argmax(np.abs(r1[a:b])))
-        a = max(a, min(peak - half, b - (span - a)))
-        span = a + 2 * half
+    if left and left["mostly"] and span < b:  # the 5 s window centred on the block's largest residual
+        width = span - a
+        a = int(np.clip(a + int(np.argmax(np.abs(r1[a:b]))) - width // 2, a, b - width))
+        span = a + width
     sl = slice(a, span)
     ax.plot(t[sl], w[sl], color="0.6", lw=0.8, label="measured")
     ax.plot(t[sl], d.w_nominal[sl], color="C3", lw=0.9, label="nominal")
