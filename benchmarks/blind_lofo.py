@@ -517,6 +517,31 @@ def _gap_text(closed: list[float]) -> str:
     return f"{min(closed):.0%} / {np.median(closed):.0%}" if closed else "-"
 
 
+def same_verdict_gap_lines(pairs: list[tuple[dict, dict]], folds: dict, shown: int = 4) -> list[str]:
+    """How the check-log gap closed moved where both runs name the truth under the second run's fold decision:
+    a change that sizes effects differently, not what it names, shows here and nowhere else."""
+    moves = []
+    for r0, r1 in pairs:
+        dk = folds[r1["family"]][0]
+        if not r1["truth"] or verdict_at(r0, dk) != r1["truth"] or verdict_at(r1, dk) != r1["truth"]:
+            continue
+        c0, c1 = closed_at(r0, dk), closed_at(r1, dk)
+        if c0 is not None and c1 is not None:
+            moves.append((c1 - c0, c0, c1, r1))
+    head = "check-log gap closed where both runs name the truth (held out, the second run's fold decisions):"
+    if not moves:
+        return [head, "  no such case"]
+    d = sorted(m[0] for m in moves)
+    lines = [head, f"  {len(moves)} cases: median change {float(np.median(d)):+.1%}, up by over 1 point "
+                   f"{sum(x > 0.01 for x in d)}, down by over 1 point {sum(x < -0.01 for x in d)}; min "
+                   f"{min(m[1] for m in moves):.0%} -> {min(m[2] for m in moves):.0%}"]
+    by = sorted(moves, key=lambda m: m[0])
+    for m in by[:shown] + [x for x in by[-shown:] if x not in by[:shown]]:
+        r = m[3]
+        lines.append(f"  {r['plant']:<24} c{r['case']:<3} {'+'.join(r['truth']):<22} {m[1]:.0%} -> {m[2]:.0%}")
+    return lines
+
+
 def comparison_table(before: list[dict], after: list[dict], default: str, label_before: str = "before",
                      label_after: str = "after") -> str:
     """Two runs on the same cases: the held-out figures of each (its own folds' choices), the shipped default's,
@@ -567,6 +592,7 @@ def comparison_table(before: list[dict], after: list[dict], default: str, label_
                        f"{'+'.join(d0) or '[]'} -> {'+'.join(d1) or '[]'}; held out {'+'.join(h0) or '[]'} -> "
                        f"{'+'.join(h1) or '[]'}{gap}")
     lines += changed or ["  none"]
+    lines += ["", *same_verdict_gap_lines(pairs, fa)]
     moved = [(correct_decisions(r1) - correct_decisions(r0), r0, r1) for r0, r1 in pairs]
     moved = sorted((m for m in moved if m[0]), key=lambda m: (-abs(m[0]), case_id(m[2])))
     lines += ["", f"correct decisions moved ({len(moved)} cases; gained {sum(m[0] for m in moved if m[0] > 0)}, "

@@ -595,14 +595,15 @@ class Problem:
         base, _ = self.affine(eff, ())
         return base
 
-    def solve_linear(self, eff: Effects, free: tuple[str, ...]) -> tuple[Effects, np.ndarray]:
-        """Least-squares values of the free linear fields on the training samples."""
+    def solve_linear(self, eff: Effects, free: tuple[str, ...],
+                     mask: np.ndarray | None = None) -> tuple[Effects, np.ndarray]:
+        """Least-squares values of the free linear fields on the training samples (or on ``mask``)."""
         # in the column order of ``affine``
         free = tuple(f for f in LINEAR_FIELDS if f in free and (f == "drift_deg_s" or self.q is not None))
         base, basis = self.affine(eff, free)
         if not free or not np.all(np.isfinite(base)):
             return eff, base
-        m = self.split.train
+        m = self.split.train if mask is None else mask
         y = self.w[m] - base[m]
         A = basis[m]
         scale = np.sqrt(np.sum(A ** 2, axis=0))
@@ -712,6 +713,36 @@ class Problem:
         return Fit(names, eff, wp, self.mse(wp, tm), self.mse(wp, self.split.score), sum(params_of.values()),
                    0, {b.field: float(x) for b, x in zip(boxes, s0, strict=True)}, boxes, params_of,
                    tuple(b.field for b in boxes if b != first[b.field]))
+
+    def refit_whole(self, fit: Fit, max_evals: int) -> Fit:
+        """``fit``'s effects fitted again on every analysed sample (the training and the scored blocks), from
+        where the training fit ended, in its forms and boxes: once the held-out blocks have chosen the effects,
+        their sizes are estimated on the whole log, as a model chosen by cross-validation is refitted on all
+        of its data. The refit's ``score_mse`` is not held out; ``fit`` is returned when the refit is no better
+        on the whole log (or not finite)."""
+        if not fit.names:
+            return fit
+        whole = self.split.train | self.split.score
+        lin = tuple(f for n in fit.names for f in linear_fields(n))
+        boxes = list(fit.boxes)
+
+        def build(s: np.ndarray) -> Effects:
+            return replace(fit.effects, **{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
+
+        def cost(s: np.ndarray) -> float:
+            return self.mse(self.solve_linear(build(s), lin, whole)[1], whole)
+
+        s0 = np.array([fit.coords.get(b.field, b.coord(getattr(fit.effects, b.field))) for b in boxes])
+        # not through ``_search``: its kept ends are the training fits', from the same starts. Brent and
+        # Nelder-Mead return the start unless they find better
+        s1 = s0 if not boxes else self._brent(cost, s0) if len(boxes) == 1 else self._nelder_mead(cost, s0,
+                                                                                                 max_evals)
+        eff, wp = self.solve_linear(build(s1), lin, whole)
+        if not math.isfinite(self.mse(wp, whole)):
+            return fit
+        return replace(fit, effects=eff, w_pred=wp, train_mse=self.mse(wp, self.split.train),
+                       score_mse=self.mse(wp, self.split.score),
+                       coords={b.field: float(x) for b, x in zip(boxes, s1, strict=True)})
 
     def _search_wider(self, boxes: list[Box], s0: np.ndarray, build, cost, over, lin, max_evals: int):
         """When the search ends at an edge that only limits the effect's size (a backlash as wide as 0.4 of the

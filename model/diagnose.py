@@ -47,6 +47,12 @@
 3. **How far.** Held-out RMS before and after, and the share of the gap closed
    ``(MSE_nominal - MSE_augmented) / (MSE_nominal - noise^2)``, overall and in
    every cell of step 1.
+4. **How large.** Once the scored blocks have chosen the effects, their sizes
+   are fitted again on every analysed sample, from where the training fit
+   ended (``diag_fit.Problem.refit_whole``): the report's effects and the
+   augmented model carry these, as a model chosen by cross-validation is
+   refitted on all of its data; the held-out figures of step 3 stay those of
+   the training fit (``effects_on_training_blocks``).
 
 No I/O: ``diagnose`` returns a ``Diagnosis`` with the report (a JSON-ready
 dict), the augmented ``ModelFile`` and the residual series for plotting;
@@ -988,18 +994,23 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     # what a check log already put in the known error beyond the bench's: the shortfall raises it only past that
     measured = e_m ** 2 - bench_known_error(model, noise, opt.use_model_error) ** 2
     carry = carry_check(ex, em, side, measured)
+    alt_paths = []
     with ex.workers():
         path, carried = decide_carried(ex, opt.decision, opt.max_effects, carry)
         for k, d in enumerate(opt.alternatives):
             if progress:
                 progress("alternative decisions", k, len(opt.alternatives))
             alt, alt_carried = (path, carried) if d == opt.decision else decide_carried(ex, d, opt.max_effects, carry)
+            alt_paths.append(alt)
             alternatives.append({"decision": d.to_dict(), "verdict": list(alt.named),
                                  "floor_raised_by_ms": alt_carried["raised_by_ms"] if alt_carried else 0.0,
-                                 "effects": {n: alt.fit.values([n])[n] for n in alt.named},
                                  "kept_unnamed": sorted(alt.unnamed),
                                  "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
                                  "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
+    sized = WholeLogSizes(prob, opt.max_evals, progress)
+    sized.expect([path] + alt_paths)
+    for a, alt in zip(alternatives, alt_paths, strict=True):
+        a["effects"] = {n: sized.of(alt).values([n])[n] for n in alt.named}
     raised = carried["raised_by_ms"] if carried is not None else 0.0
     e_known = math.sqrt(e_m ** 2 + raised)  # the known error the report judges by: raised where it did not carry
     if raised > 0:  # the rest of the report on the raised floor
@@ -1019,7 +1030,8 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "gap_closed_beyond_model_error": gap_closed(mse0, mse1, floor2),
         "where": {k: v for k, v in shrink.items() if k not in ("scores", "dominant", "dominant_cell")},
     }
-    hits = cur.bound_hits() if selected else []
+    whole = sized.of(path)  # the verdict's effects sized on every analysed sample; ``cur`` is the held-out one
+    hits = whole.bound_hits() if selected else []
     for h in hits:
         h["meaning"] = _bound_meaning(h)
         chosen_conf[h["effect"]] = chosen_conf.get(h["effect"], 0.0) * BOUND_CONFIDENCE
@@ -1052,7 +1064,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     if not selected and not residual_is_noise:
         notes.append("the residual is structured but no effect explains a significant, material share of it: "
                      "it is the model's own error (re-identify on a richer log, or diagnose a longer one)")
-    eff_out = cur.effects if selected else base
+    eff_out = whole.effects if selected else base
     extra = {"method": "warpbridge diagnose", "verdict": list(selected), "nominal_heldout_rms_deg": math.sqrt(mse0)}
     if "travel_mm" in model.fit.extra:  # the nominal's parameters were identified there, whatever the effects add
         extra["travel_mm"] = model.fit.extra["travel_mm"]
@@ -1066,7 +1078,10 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     report = {
         "format": REPORT_FORMAT,
         "verdict": list(selected),
-        "effects": {n: cur.values([n])[n] for n in selected},
+        "effects": {n: whole.values([n])[n] for n in selected},
+        "effects_sized_on": "every analysed sample (training and scored blocks), once the scored blocks had "
+                            "chosen them; `effects_on_training_blocks` are the sizes the held-out figures are of",
+        "effects_on_training_blocks": {n: cur.values([n])[n] for n in selected},
         "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
         "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
         "model_error_from_check": _check_note(model, noise, opt.use_model_error),
@@ -1083,7 +1098,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "bound_hits": hits,
         "ambiguities": ambiguities,
         "dropped": path.dropped,
-        "kept_unnamed": {n: {"fitted": cur.values([n])[n]} | v for n, v in path.unnamed.items()},
+        "kept_unnamed": {n: {"fitted": whole.values([n])[n]} | v for n, v in path.unnamed.items()},
         "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
         "left_over": left,
@@ -1099,6 +1114,33 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     }
     report["summary"] = summary_lines(report)
     return Diagnosis(list(selected), report, augmented, t, u, w, w_nom, w_aug, sp, cl)
+
+
+class WholeLogSizes:
+    """Each verdict's effects sized on the whole analysed log (``Problem.refit_whole``), once per distinct fit;
+    a verdict of no effect is its own fit."""
+
+    def __init__(self, prob: Problem, max_evals: int, progress: Callable[[str, int, int], None] | None) -> None:
+        self.prob, self.max_evals, self.progress = prob, max_evals, progress
+        self._done: dict[str, Fit] = {}
+
+    @staticmethod
+    def _key(p: Path) -> str:
+        return repr((p.selected, p.fit.effects))
+
+    def expect(self, paths: list[Path]) -> None:
+        """Refit every distinct verdict of ``paths`` now, with progress."""
+        todo = {self._key(p): p for p in paths if p.selected and self._key(p) not in self._done}
+        for k, (key, p) in enumerate(todo.items()):
+            if self.progress:
+                self.progress("sizing on the whole log", k, len(todo))
+            self._done[key] = self.prob.refit_whole(p.fit, self.max_evals)
+
+    def of(self, p: Path) -> Fit:
+        if not p.selected:
+            return p.fit
+        self.expect([p])
+        return self._done[self._key(p)]
 
 
 # a change of the tension the sheath carries changes its friction too (capstan law: the force a stretch of
