@@ -1,7 +1,8 @@
 """What ``warpbridge diagnose`` costs on 60 s at 500 Hz, two ways of running it side by side in the same run.
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
-                                                        trial-reach|blow-up|passes|kept-runs|processes|schedule]
+                                                        trial-reach|blow-up|passes|kept-runs|processes|schedule|
+                                                        reverse-refits]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
@@ -12,6 +13,10 @@ command's default is the cores free at its start).
 (``diagnose.hand_out_order``, by ``FitJob.expected_runs``) and the beam's two second rounds fitted side by side
 (``Explorer.rounds``) (as shipped) against in the order they were asked for and one round at a time (the code
 before); the reports must be identical.
+``--compare reverse-refits``: on ``--threads`` workers, round 2's refit from the new effect's own fit run for the
+two candidates of best screen and for every one that alone closed ``diagnose.ALONE_SHARE`` of the nominal's
+training gap (as shipped) against for the two of best screen only (the code before); the verdicts are compared,
+the reports differ by design (more refits, other alternatives).
 ``--compare input-terms``: the model-error correction's input terms reused (as shipped) against recomputed at
 every evaluation (the code before they were cached), both on one thread. ``--compare band-travel``: the
 correction's loop-shape terms stretched in travel with a friction band (as shipped: their input terms computed
@@ -63,6 +68,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -285,7 +291,9 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}
     shipped_passes = {key: getattr(*key) for key in _PASSES_BASELINE}
-    jobs = threads if (compare == "threads" and new) or compare in ("kept-runs", "processes", "schedule") else 1
+    jobs = threads if (compare == "threads" and new) or compare in ("kept-runs", "processes", "schedule",
+                                                                     "reverse-refits") else 1
+    alone_share = diagnose.ALONE_SHARE
     grid_bytes = diag_fit.GRID_CACHE_BYTES
     if compare == "kept-runs" and not new:
         diag_fit.GRID_CACHE_BYTES = 0
@@ -307,6 +315,8 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     if compare == "schedule" and not new:
         diagnose.Explorer.rounds = _one_by_one
         diagnose.hand_out_order = _as_asked
+    if compare == "reverse-refits" and not new:
+        diagnose.ALONE_SHARE = math.inf
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -320,6 +330,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         diag_pool.can_fork = _SHIPPED_CAN_FORK
         diagnose.Explorer.rounds = _SHIPPED_ROUNDS
         diagnose.hand_out_order = _SHIPPED_ORDER
+        diagnose.ALONE_SHARE = alone_share
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
         for (module, name), fn in shipped_passes.items():
@@ -333,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
                                               "trial-reach", "blow-up", "passes", "kept-runs", "processes",
-                                              "schedule"),
+                                              "schedule", "reverse-refits"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -348,10 +359,12 @@ def main(argv: list[str] | None = None) -> int:
                          "end by its start, against each thread's last few runs only, on --threads threads; "
                          "processes: the fits on --threads worker processes against as many threads; schedule: "
                          "the jobs handed out longest first and the beam's second rounds together, against in "
-                         "the order asked for and one round at a time, on --threads workers")
+                         "the order asked for and one round at a time, on --threads workers; reverse-refits: "
+                         "round 2's refit from the new effect's own fit also for every candidate that closed a "
+                         "share alone, against for the two of best screen only, on --threads workers")
     ap.add_argument("--threads", type=int, default=2,
-                    help="workers of the shipped variant (--compare threads; of both with kept-runs, processes "
-                         "and schedule)")
+                    help="workers of the shipped variant (--compare threads; of both with kept-runs, processes, "
+                         "schedule and reverse-refits)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--cases", default="10,12", help="case numbers of the blind benchmark (10-12: pairs)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="plant families (default: all six)")
@@ -370,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
                            "blow-up": ("to the cap", "ended"), "passes": ("before", "passes"),
                            "kept-runs": ("per thread", "kept"), "processes": ("threads", "processes"),
-                           "schedule": ("as asked", "longest")}[a.compare]
+                           "schedule": ("as asked", "longest"), "reverse-refits": ("best two", "alone too")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} worker processes (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -392,8 +405,11 @@ def main(argv: list[str] | None = None) -> int:
                          "process (baseline)",
             "schedule": "the fits handed out longest first, the beam's two second rounds side by side (shipped) vs "
                         f"in the order asked for, one round at a time (baseline), {a.threads} workers",
+            "reverse-refits": "round 2's refit from the new effect's own fit for the two of best screen and every "
+                              "candidate that alone closed a share of the gap (shipped) vs the two of best screen "
+                              f"only (baseline), {a.threads} workers",
             }[a.compare]
-    by_verdict = a.compare == "band-travel"  # the two codes differ there: compare what they name
+    by_verdict = a.compare in ("band-travel", "reverse-refits")  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
     if a.case:
         todo = [(f, int(sd), int(pl), int(k)) for f, sd, pl, k in (c.split("/") for c in a.case)]

@@ -600,4 +600,24 @@ def comparison_table(before: list[dict], after: list[dict], default: str, label_
     lines += [f"  {r1['plant']:<24} c{r1['case']:<3} truth {'+'.join(r1['truth']) or '[]':<22} "
               f"{correct_decisions(r0)} -> {correct_decisions(r1)} of {len(r1['by_decision'])}"
               for _, r0, r1 in moved] or ["  none"]
+    lines += ["", *paired_time_lines(pairs, label_before, label_after)]
     return "\n".join(lines)
+
+
+def paired_time_lines(pairs: list[tuple[dict, dict]], label_before: str, label_after: str) -> list[str]:
+    """The plain ``diagnose`` times of the cases both runs timed, case by case: the two runs were made at other
+    times, so the machine's load moves each ratio; the median over many cases is what the code changed."""
+    timed = [(r0["seconds"], r1["seconds"], r1) for r0, r1 in pairs
+             if r0.get("seconds") is not None and r1.get("seconds") is not None]
+    if not timed:
+        return ["plain diagnose time: no case timed in both runs"]
+    ratios = sorted(t1 / t0 for t0, t1, _ in timed)
+    slow = max(timed, key=lambda x: x[1])
+    over = TARGETS["seconds"]
+    return [f"plain diagnose time, the {len(timed)} cases timed in both runs (each run on its own day and load, "
+            f"so one case's ratio is noisy): ratio {label_after} / {label_before} median "
+            f"{float(np.median(ratios)):.2f} (middle half {ratios[len(ratios) // 4]:.2f}-"
+            f"{ratios[(3 * len(ratios)) // 4]:.2f}); median {float(np.median([t[0] for t in timed])):.1f} -> "
+            f"{float(np.median([t[1] for t in timed])):.1f} s; over {over:.0f} s {sum(t[0] > over for t in timed)} "
+            f"-> {sum(t[1] > over for t in timed)}; slowest in {label_after}: {slow[2]['plant']} c{slow[2]['case']}, "
+            f"{slow[0]:.1f} -> {slow[1]:.1f} s"]

@@ -286,6 +286,9 @@ def initial_state(t, u, w, airspeed, model: ModelFile, em: ErrorModel | None) ->
     return estimate_plant_start(Plant(model.params, model.effects, em), t, u, w, airspeed)
 
 
+ALONE_SHARE = 0.1  # a candidate that alone closes this share of the training gap is refitted from its own fit
+
+
 def hand_out_order(jobs: list) -> list[int]:
     """The order the pool gets ``jobs`` in (its queue is first in, first out): the longest first by their
     ``expected_runs``, since a stage ends when its last job does, and a long job started last leaves the other
@@ -402,10 +405,16 @@ class Explorer:
             # and from the other side: the new effect as it fitted alone, the chosen one searched afresh on
             # its grid. Started from the chosen one's fit, the joint search can stay where that one has
             # soaked up the new one's part (a backlash wide enough for a friction band too, a drift bent to
-            # follow a load), which the new one alone does not
+            # follow a load), which the new one alone does not. Also for every candidate that alone closed a
+            # tenth of the nominal's gap on the training blocks: held at the chosen one's fit, a screen can
+            # rank such a one low (a play beside a pre-tension fitted with no play), from its own fit not
+            gap = self.nominal.train_mse - self.floor2
+            alone = [c for c in fits if (c,) in self.fits and gap > 0
+                     and self.nominal.train_mse - self.fits[(c,)].train_mse >= ALONE_SHARE * gap]
+            reverse = list(dict.fromkeys(top + alone))
             jobs |= {(c, "reverse"): dict(names=selected + (c,), start=self.fits[(c,)].effects,
                                           grid_for=selected[0], free_nonlinear=selected,
-                                          max_evals=self.opt.max_evals) for c in top}
+                                          max_evals=self.opt.max_evals) for c in reverse}
         return jobs
 
     def _judge(self, selected: tuple[str, ...], fits: dict[str, Fit]) -> list[Judged]:

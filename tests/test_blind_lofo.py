@@ -75,6 +75,17 @@ def test_comparison_counts_the_grid_and_lists_what_moved():
     assert "1 -> 2 of 2" not in moved and "2 -> 1 of 2" in moved and "0 -> 1 of 2" in moved
 
 
+def test_comparison_pairs_the_times_of_the_cases_both_runs_timed():
+    before = [run_case("x", k, ["friction"], {C: True}) | {"seconds": s} for k, s in enumerate((10.0, 20.0, 40.0))]
+    after = [run_case("x", k, ["friction"], {C: True}) | {"seconds": s} for k, s in enumerate((11.0, None, 36.0))]
+    line = blind_lofo.comparison_table(before, after, C, "old", "new").splitlines()[-1]
+    assert line.startswith("plain diagnose time, the 2 cases timed in both runs")
+    assert "median 1.00" in line  # the ratios 1.1 and 0.9; the case the new run did not time is left out
+    assert "over 30 s 1 -> 1" in line and "x-s0-0 c2, 40.0 -> 36.0 s" in line
+    untimed = [run_case("x", 0, ["friction"], {C: True})]
+    assert blind_lofo.comparison_table(untimed, untimed, C).endswith("no case timed in both runs")
+
+
 def test_comparison_of_runs_without_shared_cases_says_so():
     a = [run_case("x", 0, ["friction"], {C: True})]
     b = [run_case("x", 1, ["friction"], {C: True})]
