@@ -3,15 +3,19 @@
 Each command module provides ``add_arguments(parser)`` and ``main(args) -> int``.
 Errors a user can fix (bad files, bad options, missing devices) are raised as
 ``UserError`` and printed as one line with a non-zero exit, never a traceback.
+``--help`` lists every command of ``COMMANDS`` whether or not its module can be
+imported; a command whose module (or a module it needs, such as an optional
+dependency) cannot be imported fails with one line naming what is missing.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
+import importlib.metadata
 import logging
 import sys
+from types import ModuleType
 
 from warpbridge.bridge.errors import UserError
 
@@ -28,21 +32,41 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def _available() -> dict[str, tuple[str, str]]:
-    out = {}
-    for name, (mod, help_) in COMMANDS.items():
-        try:
-            found = importlib.util.find_spec(mod) is not None
-        except ModuleNotFoundError:  # the command's package is not installed
-            found = False
-        if found:
-            out[name] = (mod, help_)
-    return out
+# exit status of a command that cannot be loaded (argparse and UserError use 2)
+EXIT_UNAVAILABLE = 1
+
+
+class CommandUnavailable(Exception):
+    """A command's module, or a module it imports, cannot be imported (an incomplete install)."""
+
+    def __init__(self, command: str, message: str) -> None:
+        super().__init__(message)
+        self.command = command
+
+
+def version() -> str:
+    """The installed distribution's version, or ``unknown`` when run from files that are not installed."""
+    try:
+        return importlib.metadata.version("warpbridge")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def load(name: str) -> ModuleType:
+    """The module of command ``name``; raises ``CommandUnavailable`` naming what is missing."""
+    module = COMMANDS[name][0]
+    try:
+        return importlib.import_module(module)
+    except ImportError as e:
+        raise CommandUnavailable(name, f"cannot load {module}: {e}") from e
 
 
 def _chosen(argv: list[str], names: set[str]) -> str | None:
-    """The sub-command named in ``argv`` (the first word that is one), or None."""
+    """The sub-command named in ``argv`` (the first word that is one), or None (also when ``--help`` or
+    ``--version`` comes first: argparse answers those before it reaches the command)."""
     for word in argv:
+        if word in ("-h", "--help", "--version"):
+            return None
         if word in names:
             return word
         if not word.startswith("-"):
@@ -54,6 +78,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser; only the chosen command's module is imported (all of them when ``argv`` is None).
 
     ``warpbridge run`` thus loads what a cycle needs and nothing of identification or plotting.
+    Every command is listed; raises ``CommandUnavailable`` when a module to import cannot be.
     """
     parser = argparse.ArgumentParser(
         prog="warpbridge",
@@ -62,13 +87,14 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v for debug)")
     parser.add_argument("-q", "--quiet", action="count", default=0,
                         help="less log output: warnings and faults only (-qq: errors only)")
+    parser.add_argument("--version", action="version", version=f"warpbridge {version()}",
+                        help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    available = _available()
-    chosen = None if argv is None else _chosen(argv, set(available))
-    for name, (mod, help_) in available.items():
+    chosen = None if argv is None else _chosen(argv, set(COMMANDS))
+    for name, (_path, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
         if argv is None or name == chosen:
-            module = importlib.import_module(mod)
+            module = load(name)
             module.add_arguments(p)
             p.set_defaults(_module=module)
     return parser
@@ -84,7 +110,11 @@ def main(argv: list[str] | None = None) -> int:
 
     jitcache.configure()  # before any command imports numba: a writable compile cache
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(argv)
+    try:
+        parser = build_parser(argv)
+    except CommandUnavailable as e:
+        print(f"warpbridge {e.command}: {e}", file=sys.stderr)
+        return EXIT_UNAVAILABLE
     args = parser.parse_args(argv)
     logging.basicConfig(level=log_level(args.verbose, args.quiet), format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "command", None):
@@ -95,6 +125,10 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as e:
         print(f"warpbridge {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as e:  # imported only when needed (e.g. a plotting library): an incomplete install
+        logging.getLogger(__name__).debug("import failed", exc_info=True)
+        print(f"warpbridge {args.command}: cannot load a module it needs: {e}", file=sys.stderr)
+        return EXIT_UNAVAILABLE
     except KeyboardInterrupt:
         print(f"warpbridge {args.command}: interrupted", file=sys.stderr)
         return 130
