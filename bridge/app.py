@@ -607,7 +607,8 @@ class Bridge:
             log.exception("telemetry failed")
         if self.log is not None:
             try:
-                self.log.write(now - self.start, mode, self.link.airspeed, rows)
+                self.log.write(now - self.start, mode, self.link.airspeed, rows,
+                               fc_t=getattr(self.link, "servo_fc_time", None))
             except Exception:  # noqa: BLE001
                 log.exception("cycle log write failed; logging stopped")
                 self.log = None

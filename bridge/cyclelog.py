@@ -2,7 +2,10 @@
 
 Columns: ``t, mode, airspeed`` then, per wing (left, right), ``<wing>_setpoint``
 (deg), ``_ff`` (mm), ``_pi`` (mm), ``_u`` (mm, the tendon command), ``_warp``
-(deg, measured) and ``_pulse`` (us). Missing values are written as ``nan``.
+(deg, measured) and ``_pulse`` (us), then ``fc_t``: the FC's own time stamp (s since its boot;
+SERVO_OUTPUT_RAW ``time_usec``, 32 bits, wraps after 71.6 min) of the servo-output message the
+row's setpoints come from, by which ``warpbridge review`` joins this log to the FC's.
+Missing values are written as ``nan``.
 Rows are buffered in memory and written every ``flush_s`` seconds and on
 ``close()``, so a clean stop never loses a row. A ``{time}`` in the path is
 replaced by the local start time (``YYYYmmdd-HHMMSS``): a new file per run.
@@ -20,7 +23,7 @@ log = logging.getLogger(__name__)
 
 WING_FIELDS = ("setpoint", "ff", "pi", "u", "warp", "pulse")
 WINGS = ("left", "right")
-COLUMNS = ("t", "mode", "airspeed") + tuple(f"{w}_{f}" for w in WINGS for f in WING_FIELDS)
+COLUMNS = ("t", "mode", "airspeed") + tuple(f"{w}_{f}" for w in WINGS for f in WING_FIELDS) + ("fc_t",)
 
 
 def expand_path(path: str | Path, when: float | None = None) -> Path:
@@ -54,13 +57,14 @@ class CycleLog:
         log.info("cycle log: %s", self.path)
 
     def write(self, t: float, mode: str, airspeed: float | None,
-              wings: Mapping[str, Mapping[str, float | None]]) -> None:
+              wings: Mapping[str, Mapping[str, float | None]], fc_t: float | None = None) -> None:
         if self._file is None:
             return
         cells = [f"{t:.6f}", mode.replace(",", ";"), _fmt(airspeed)]  # us: a replay runs the cycles then
         for w in WINGS:
             vals = wings.get(w, {})
             cells.extend(_fmt(vals.get(f)) for f in WING_FIELDS)
+        cells.append("nan" if fc_t is None or not math.isfinite(fc_t) else f"{fc_t:.6f}")
         self._rows.append(",".join(cells))
         now = self._clock()
         if now - self._last_flush >= self._flush_s:

@@ -193,6 +193,7 @@ class FcLink:
         self.servo_raw: dict[int, float] = {}  # last value of every output, valid or not
         self.servo_invalid: set[int] = set()
         self.servo_time: float | None = None
+        self.servo_fc_time: float | None = None  # the FC's stamp of the latest servo message (s since its boot)
         self.airspeed: float | None = None
         self.airspeed_time: float | None = None
         self.acks: dict[int, int] = {}  # command -> last MAV_RESULT
@@ -519,7 +520,7 @@ class FcLink:
             # 0 is how ArduPilot reports a disabled output: invalid, but not an error
             if not self._set_servo(port * 16 + i, value) and value != 0:
                 bad += 1
-        self._servo_seen(now, bad)
+        self._servo_seen(now, bad, msg.time_usec)
 
     def _actuator_output_status(self, msg: Any, now: float) -> None:
         active = int(msg.active)
@@ -537,14 +538,16 @@ class FcLink:
             self._stream_seen["servo"] = now  # the stream is alive, only empty
             return
         bad = sum(1 for ch in channels if not self._set_servo(ch, values[ch - 1]) and values[ch - 1] != 0)
-        self._servo_seen(now, bad)
+        self._servo_seen(now, bad, msg.time_usec)
 
-    def _servo_seen(self, now: float, bad: int) -> None:
+    def _servo_seen(self, now: float, bad: int, fc_usec: Any = None) -> None:
         self.counters.servo_messages += 1
         self.counters.invalid_values += bad
         if bad:
             self._warn_once("servo-bad", f"FC sent {bad} absurd servo value(s); marked invalid")
         self.servo_time = now
+        if isinstance(fc_usec, int) and fc_usec > 0:  # SERVO_OUTPUT_RAW's is 32 bits: wraps after 71.6 min
+            self.servo_fc_time = fc_usec * 1e-6
         self._stream_seen["servo"] = now
 
     def _vfr_hud(self, msg: Any, now: float) -> None:
