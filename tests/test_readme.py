@@ -129,6 +129,17 @@ def test_every_relative_link_leads_to_a_file():
     assert broken == []
 
 
+def test_every_headline_figure_names_the_benchmark_that_prints_it_and_links_the_results():
+    rows = [line for line in section("## Headline figures").splitlines()
+            if line.startswith("| ") and not line.startswith("| what |")]
+    assert 1 <= len(rows) <= 12
+    for row in rows:
+        commands = re.findall(r"`python (benchmarks/\w+\.py)[^`]*`", row)
+        assert len(commands) == 1, row
+        assert (REPO / commands[0]).is_file(), commands[0]
+        assert "(docs/results.md" in row, row
+
+
 def test_the_readme_links_its_guides_and_the_results():
     targets = {t for t, _ in links(README)}
     for page in ("docs/identify.md", "docs/diagnose.md", "docs/method.md", "docs/commands.md", "docs/results.md",
