@@ -101,31 +101,52 @@ def test_the_section_helpers_see_what_they_should():
     """The helpers the checks above rely on, on a text whose answer is known."""
     text = "# A\n## Set up\nx\n```\none\n\ntwo\n```\n### sub\n```sh\nthree\n```\n## Next\n```\nfour\n```\n"
     assert fenced_lines(section("## Set up", text)) == ["one", "two", "three"]
-    assert [target for target, _ in links("[a](b.md) [c](http://x) [d](#e) [f](g.md#h) `[i](j.md)`\n")] == \
-        ["b.md", "g.md"]
+    assert [(p, a) for p, a, _ in links("[a](b.md) [c](http://x) [d](#e) [f](g.md#h) `[i](j.md)`\n")] == \
+        [("b.md", ""), ("", "e"), ("g.md", "h")]
+    assert anchors("# The `warpbridge sitl` demo\n## Set up\n```\n# not a heading\n```\n## Set up\n") == \
+        {"the-warpbridge-sitl-demo", "set-up", "set-up-1"}
 
 
-def links(text: str) -> list[tuple[str, str]]:
-    """(relative target without its #anchor, the link as written) of every markdown link outside code."""
+def links(text: str) -> list[tuple[str, str, str]]:
+    """(relative target, #anchor or '', the link as written) of every markdown link outside code; a link to an
+    anchor of the same page has the target ''."""
     text = re.sub(r"```.*?```", "", text, flags=re.S)
     text = re.sub(r"`[^`\n]*`", "", text)
     out = []
     for m in re.finditer(r"!?\[[^\]]*\]\(([^)\s]+)\)", text):
         target = m.group(1)
-        if re.match(r"[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
-            continue  # a URL or an anchor on the same page
-        out.append((target.split("#")[0], m.group(0)))
+        if re.match(r"[a-z][a-z0-9+.-]*:", target):
+            continue  # a URL
+        path, _, anchor = target.partition("#")
+        out.append((path, anchor, m.group(0)))
     return out
 
 
-def test_every_relative_link_leads_to_a_file():
+def anchors(text: str) -> set[str]:
+    """The anchors GitHub gives the headings of a markdown text (lower case, punctuation dropped, spaces to
+    hyphens; a repeated heading gets -1, -2, ...)."""
+    text = re.sub(r"```.*?```", "", text, flags=re.S)
+    seen: dict[str, int] = {}
+    out = set()
+    for m in re.finditer(r"^#{1,6} +(.+?) *#*$", text, re.M):
+        slug = re.sub(r"[^\w\- ]", "", m.group(1).strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def test_every_relative_link_leads_to_a_file_and_its_anchor_to_a_heading():
     pages = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
     assert REPO / "docs" / "commands.md" in pages
     broken = []
     for page in pages:
-        for target, written in links(page.read_text(encoding="utf-8")):
-            if not (page.parent / target).exists():
+        for path, anchor, written in links(page.read_text(encoding="utf-8")):
+            target = page.parent / path if path else page
+            if not target.exists():
                 broken.append(f"{page.relative_to(REPO)}: {written}")
+            elif anchor and target.suffix == ".md" and anchor not in anchors(target.read_text(encoding="utf-8")):
+                broken.append(f"{page.relative_to(REPO)}: {written} (no such heading)")
     assert broken == []
 
 
@@ -141,7 +162,7 @@ def test_every_headline_figure_names_the_benchmark_that_prints_it_and_links_the_
 
 
 def test_the_readme_links_its_guides_and_the_results():
-    targets = {t for t, _ in links(README)}
+    targets = {t for t, _, _ in links(README)}
     for page in ("docs/identify.md", "docs/diagnose.md", "docs/method.md", "docs/commands.md", "docs/results.md",
                  "docs/report-format.md", "docs/hardware.md", "docs/autopilot-sitl.md", "docs/changelog.md",
                  "docs/diagnose-example.png"):
