@@ -26,6 +26,7 @@ PX4's SIH airplane is ``tests/test_px4_sitl.py`` (``WARPBRIDGE_PX4``).
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import subprocess
@@ -86,12 +87,12 @@ def plane_defaults() -> Path | None:
 class ArduPlane:
     """The SITL process in its own directory."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, extra_params: str = "") -> None:
         self.folder = folder
         self.instance = free_instance()
         self.gcs_port, self.bridge_port = 5760 + 10 * self.instance, 5762 + 10 * self.instance
         own = folder / "warpbridge-test.parm"
-        own.write_text(OWN_PARAMS)
+        own.write_text(OWN_PARAMS + extra_params)
         defaults = [str(p) for p in (plane_defaults(), own) if p is not None]
         self.log = open(folder / "arduplane.log", "wb")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen([ARDUPLANE, "-w", "--model", "plane", "--speedup", "1", "--serial0", "tcp:0", "-I",
@@ -306,3 +307,158 @@ def test_a_changed_output_function_is_judged_again(plane, bridge_factory):
     assert wait_for(lambda: bridge.log().count("left wing: FC output 1 is an aileron") == 2, 15.0), \
         bridge.log()[-3000:]
     assert bridge.stop() == 0
+
+
+# ---------------------------------------------------------------------------------------------- a flight
+# ArduPlane takes off (TAKEOFF mode), then flies FBWA with an RC-override aileron sweep while the bridge
+# runs ff+pi on SERIAL1 with two simulated wings behind the emulated Maestro (sensors included); the
+# ground station records a tlog; the FC writes its DataFlash log. ``WARPBRIDGE_FLIGHT_OUT=<dir>`` keeps
+# the three logs (how tests/data/ was made).
+
+FLIGHT_PARAMS = (
+    "LOG_BITMASK 8338\n"  # ATTITUDE_MED (ATT, PIDR at 10 Hz) | CTUN | IMU (IMU, ARSP) | RC (RCIN, RCOU)
+    "LOG_DISARMED 0\n"  # the log starts at arming
+    "TKOFF_ALT 40\n"
+    "SR0_EXTRA1 10\nSR0_EXTRA2 10\nSR0_RAW_CTRL 10\nSR0_EXTRA3 2\nSR0_POSITION 5\n"  # the tlog's streams
+)
+MODE_FBWA, MODE_TAKEOFF = 5, 13
+
+
+class FlightGcs(Gcs):
+    """``Gcs`` that records a tlog, flies (arm, modes, aileron and throttle sticks) and watches the FC."""
+
+    def __init__(self, port: int, tlog: Path) -> None:
+        self.throttle: int | None = None
+        self.armed = False
+        self.mode: int | None = None
+        self.altitude = 0.0
+        self.airspeed = 0.0
+        self._tlog = tlog
+        super().__init__(port)
+
+    def start(self) -> None:
+        self.mav.setup_logfile(str(self._tlog))  # pymavlink writes every message it receives, stamped: a tlog
+        super().start()
+
+    def periodic(self, now: float) -> None:
+        stick, self.stick = self.stick, None  # our own override below carries the aileron and the throttle
+        try:
+            super().periodic(now)
+        finally:
+            self.stick = stick
+        if (stick is not None or self.throttle is not None) and now >= self._next_rc:
+            self._next_rc = now + 0.05
+            self.mav.mav.rc_channels_override_send(1, 1, stick or 0, 0, self.throttle or 0, 0, 0, 0, 0, 0)
+
+    def take(self, m: Any) -> None:
+        super().take(m)
+        t = m.get_type()
+        if t == "HEARTBEAT" and m.get_srcComponent() == 1:
+            self.armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            self.mode = m.custom_mode
+        elif t == "GLOBAL_POSITION_INT":
+            self.altitude = m.relative_alt / 1000.0
+        elif t == "VFR_HUD":
+            self.airspeed = m.airspeed
+
+    def set_mode(self, mode: int) -> None:
+        self.mav.mav.command_long_send(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                       mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mode, 0, 0, 0, 0, 0)
+
+    def arm(self) -> None:
+        self.mav.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+
+
+def fly(folder: Path, sweep_s: float = 30.0) -> dict[str, Path]:
+    """One flight; returns the paths of the DataFlash log, the tlog and the bridge's cycle log."""
+    import tomllib
+
+    from warpbridge.sitl.cmd_sitl import EMULATED_BOARD_TIMEOUT_S, VirtualRig
+    from warpbridge.sitl.lockstep import make_wings
+    from warpbridge.sitl.scenarios import Rig, make_scenario
+    from warpbridge.sitl.wing import WingSpec
+
+    ap = ArduPlane(folder, FLIGHT_PARAMS)
+    gcs = bridge = emu = None
+    try:
+        ap.wait_listening()
+        gcs = FlightGcs(ap.gcs_port, folder / "flight.tlog")
+        assert wait_for(lambda: gcs.fc_heartbeat, 30.0), "no heartbeat from ArduPlane"
+        gcs.mav.mav.request_data_stream_send(1, 1, mavlink.MAV_DATA_STREAM_ALL, 10, 1)
+        rig = Rig()
+        wings = make_wings(make_scenario("steps", 600.0, rig=rig), WingSpec(), w0_deg=rig.bias_deg, grid=True)
+        vrig = VirtualRig(rig, wings)
+        emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
+        pty = emu.start()
+        toml = rig.config_toml(connection=f"tcp:127.0.0.1:{ap.bridge_port}",
+                               servo_backend=f"maestro:{pty},timeout={EMULATED_BOARD_TIMEOUT_S:g}",
+                               sensor_backend="maestro:", mode="ff+pi", log="cycles.csv", params_file="params.json",
+                               servo_rate_hz=50.0)
+        tomllib.loads(toml)
+        (folder / "wb.toml").write_text(toml)
+        err = open(folder / "bridge.stderr", "wb")  # noqa: SIM115 - closed below
+        bridge = subprocess.Popen([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config",
+                                   str(folder / "wb.toml")], cwd=folder, stdout=subprocess.DEVNULL, stderr=err)
+        gcs.stick, gcs.throttle = 1500, 1000
+        assert wait_for(lambda: gcs.latest("WB_mode") == 3.0, 60.0), (folder / "bridge.stderr").read_text()[-3000:]
+        deadline = time.monotonic() + 120.0
+        while not gcs.armed and time.monotonic() < deadline:  # arming waits for the EKF and GPS
+            gcs.arm()
+            time.sleep(2.0)
+        assert gcs.armed, "ArduPlane did not arm"
+        gcs.set_mode(MODE_TAKEOFF)
+        assert wait_for(lambda: gcs.altitude > 25.0, 90.0), gcs.altitude
+        gcs.throttle = 1700
+        gcs.set_mode(MODE_FBWA)
+        assert wait_for(lambda: gcs.mode == MODE_FBWA, 10.0)
+        gcs.mav.mav.param_set_send(1, 1, b"RLL2SRV_TCONST", 0.45, mavlink.MAV_PARAM_TYPE_REAL32)  # an event
+        t0 = time.monotonic()
+        while (el := time.monotonic() - t0) < sweep_s:  # aileron: sine sweeps of growing amplitude, with holds
+            amp = 150 + 250 * min(1.0, el / sweep_s * 1.5)
+            phase = el % 6.0
+            gcs.stick = int(1500 + (amp * math.sin(2 * math.pi * phase / 3.0) if phase < 4.5 else 0))
+            vrig.tick()
+            time.sleep(0.02)
+        gcs.stick = 1500
+        time.sleep(1.0)
+    finally:
+        if bridge is not None:
+            stop_process(bridge)
+            err.close()
+        if emu is not None:
+            emu.stop()
+        if gcs is not None:
+            gcs.close()
+        ap.stop()
+    bins = sorted((folder / "logs").glob("*.BIN"))
+    assert bins, f"no DataFlash log in {folder / 'logs'}"
+    files = {"bin": bins[-1], "tlog": folder / "flight.tlog", "cycles": folder / "cycles.csv"}
+    keep = os.environ.get("WARPBRIDGE_FLIGHT_OUT")
+    if keep:
+        import shutil
+
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        suffix = {"bin": ".BIN", "tlog": ".tlog", "cycles": "-cycles.csv"}
+        for name, p in files.items():
+            shutil.copy(p, Path(keep) / ("arduplane-flight" + suffix[name]))
+    return files
+
+
+def test_a_flight_reviewed_from_the_fcs_dataflash_log_and_the_cycle_log(tmp_path):
+    from warpbridge.bridge.commands.fclog import read_fc_log
+    from warpbridge.bridge.commands.logjoin import read_cycle_log
+    from warpbridge.bridge.commands.review import review
+
+    files = fly(tmp_path)
+    fc = read_fc_log(files["bin"])
+    assert {"L_sp", "R_sp", "L_warp", "R_warp", "L_cmd", "WB_mode"} <= set(fc.named), sorted(fc.named)
+    assert fc.aileron_channels == [1] and fc.output(1) is not None
+    assert any(e.kind == "param" and "RLL2SRV_TCONST" in e.text for e in fc.events), fc.events
+    cl = read_cycle_log(files["cycles"])
+    rv, flight, al = review(fc, cl)
+    assert al is not None and al.method == "fc_t" and al.check_corr > 0.8, al
+    assert abs(al.residual_s) < 0.05, al
+    assert rv.tracking["left"]["all"][0].n > 1000
+    assert rv.roll_authority and all(g.gain > 0 for g in rv.roll_authority if g.n > 100), rv.roll_authority
+    tl = read_fc_log(files["tlog"])
+    assert "L_sp" in tl.named and tl.output(1) is not None

@@ -1,4 +1,10 @@
-"""Reading logs (CSV ``t,u,warp[,airspeed]`` or the bridge's own, per wing) and writing files atomically.
+"""Reading logs (CSV ``t,u,warp[,airspeed]``, the bridge's own, or the FC's) and writing files atomically.
+
+A flight controller's log (ArduPilot ``.BIN``, a ground station's ``.tlog``, PX4 ``.ulg``; read by
+``fclog``) is taken wherever a CSV is, with ``--wing``: the bridge's named values as the FC logged them,
+``<L|R>_cmd`` as u, ``<L|R>_warp`` as warp and ``WB_aspd`` as airspeed, resampled onto the times of the
+command. They come at the telemetry rate (``WB_TLM_HZ``, 10 Hz by default), which is said in a warning
+when it is below what a diagnosis needs.
 
 Real logs are messy. Repeated timestamps (a logger faster than its sensor)
 keep the last row of each; uneven sampling and gaps are fine for a rate
@@ -25,6 +31,8 @@ from warpbridge.bridge.errors import UserError
 log = logging.getLogger(__name__)
 
 MAX_DROPPED_FRACTION = 0.2
+FC_LOG_MIN_HZ = 50.0  # named values slower than this locate a gap but cannot separate delay, rate limit, lag
+TAG = {"left": "L", "right": "R"}
 MISSING = {"", "nan", "na", "n/a", "null", "none", "-"}
 
 
@@ -69,6 +77,8 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
     """Read and clean a log; raises UserError with a one-line reason when it cannot be used."""
     p = Path(path)
     ucol, wcol = _columns_for(wing)
+    if p.suffix.lower() in (".bin", ".tlog", ".ulg"):
+        return read_fc_named_values(p, wing, require_warp, min_rows)
     try:
         fh = p.open(newline="", encoding="utf-8-sig")
     except FileNotFoundError:
@@ -109,6 +119,40 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
             raise UserError(f"{p}: malformed CSV ({e})") from None
     return clean(np.array(t), np.array(u), np.array(w) if iw is not None else None,
                  np.array(a) if ia is not None else None, str(p), rows, require_warp, min_rows)
+
+
+def read_fc_named_values(p: Path, wing: str | None, require_warp: bool = True, min_rows: int = 50) -> LogData:
+    """One wing's tendon command, measured warp and airspeed from the bridge's named values in an FC log."""
+    from warpbridge.bridge.commands.fclog import read_fc_log
+
+    if wing is None:
+        raise UserError(f"{p}: a flight controller log holds both wings' named values: pass --wing left|right")
+    fc = read_fc_log(p)
+    tag = TAG[wing]
+    u = fc.named.get(f"{tag}_cmd")
+    if u is None or len(u) < 2:
+        why = f" ({fc.notes[0]})" if fc.notes else ""
+        raise UserError(f"{p}: no {tag}_cmd named values from the bridge in this log{why}")
+    w = fc.named.get(f"{tag}_warp")
+    if require_warp and (w is None or len(w) < 2):
+        raise UserError(f"{p}: no {tag}_warp named values in this log: the bridge sends the measured warp only "
+                        "with a warp sensor")
+    rate = u.rate_hz
+    gap = 3.0 / rate if rate > 0 else math.inf  # a value missing for three periods is a gap, not a ramp
+    warp = w.at(u.t, gap) if w is not None and len(w) >= 2 else None
+    aspd = fc.named.get("WB_aspd") or fc.airspeed
+    airspeed = aspd.at(u.t, 2.0) if aspd is not None and len(aspd) >= 2 else None
+    data = clean(u.t.copy(), u.v.copy(), warp, airspeed, str(p), len(u), require_warp, min_rows)
+    data.notes.insert(0, f"{fc.fmt} log: {wing} wing's named values {tag}_cmd/{tag}_warp at {rate:.1f} Hz, "
+                         f"resampled onto {tag}_cmd's times")
+    if rate < FC_LOG_MIN_HZ:
+        msg = (f"{p}: the named values come at {rate:.1f} Hz, the telemetry rate: too low to tell a delay, a rate "
+               "limit or a sensor lag apart (a diagnosis needs the cycle log's rate, the loop's); enough to "
+               "locate where in time, airspeed and phase the gap lies. Use the bridge's cycle log, or raise "
+               "WB_TLM_HZ for logging (docs/review.md)")
+        data.notes.append(msg)
+        log.warning("%s", msg)
+    return data
 
 
 def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows: int = 50) -> LogData:

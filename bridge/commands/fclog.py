@@ -1,0 +1,573 @@
+"""Reading the flight controller's own logs: ArduPilot DataFlash ``.BIN``, a ground station's ``.tlog``, PX4 ``.ulg``.
+
+``read_fc_log(path)`` returns an ``FcLog``: the bridge's NAMED_VALUE_FLOATs as the FC logged them
+(ArduPilot ``NVAL``, PX4 ``debug_key_value``, or the ground station's ``NAMED_VALUE_FLOAT`` from
+component 191), the FC's servo outputs, roll angle and roll rate, airspeed, and the events of the
+flight (mode changes, parameter changes, failsafes, texts), all on the FC's boot clock in seconds.
+The libraries made for these formats do the parsing: pymavlink's ``DFReader`` and ``mavutil`` logs,
+``pyulog``. A ``.tlog`` records the ground station's reception time: messages that carry no FC time
+stamp are put on the FC's clock through the FC's own stamped messages (ATTITUDE, SYSTEM_TIME).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from warpbridge.bridge.errors import UserError
+
+log = logging.getLogger(__name__)
+
+FC_LOG_SUFFIXES = {".bin": "dataflash", ".tlog": "tlog", ".ulg": "ulog"}
+BRIDGE_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the bridge's named values in a tlog
+ARDUPILOT_AILERON_FUNCTION = 4  # SERVOn_FUNCTION of an aileron
+PX4_AILERON_TYPES = (1, 2)  # CA_SV_CSn_TYPE: left, right aileron
+PX4_SERVO_FUNCTION0 = 201  # PWM_MAIN_FUNCn of "Servo 1"
+MAX_CHANNELS = 16
+US_WRAP = 2**32  # SERVO_OUTPUT_RAW.time_usec is 32 bits: it wraps every 71.6 min
+
+
+@dataclass(frozen=True)
+class Series:
+    """Samples ``v`` at times ``t`` (s, FC boot clock, increasing)."""
+
+    t: np.ndarray
+    v: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def rate_hz(self) -> float:
+        """Median sample rate (0 for fewer than two samples)."""
+        if self.t.size < 2:
+            return 0.0
+        dt = float(np.median(np.diff(self.t)))
+        return 1.0 / dt if dt > 0 else 0.0
+
+    def at(self, t: np.ndarray, max_gap: float = math.inf) -> np.ndarray:
+        """Linear interpolation at ``t``; NaN outside the samples or inside a gap longer than ``max_gap`` s."""
+        t = np.asarray(t, dtype=np.float64)
+        out = np.full(t.shape, np.nan)
+        if self.t.size < 2:
+            return out
+        out = np.interp(t, self.t, self.v, left=np.nan, right=np.nan)
+        if math.isfinite(max_gap):
+            k = np.clip(np.searchsorted(self.t, t), 1, self.t.size - 1)
+            out[(self.t[k] - self.t[k - 1]) > max_gap] = np.nan
+        return out
+
+
+@dataclass(frozen=True)
+class FcEvent:
+    """Something that happened at ``t`` (s, FC clock): ``kind`` is mode, param, failsafe, text or bridge."""
+
+    t: float
+    kind: str
+    text: str
+
+
+@dataclass
+class FcLog:
+    """What the review needs from a flight controller's log (times in s on the FC's boot clock)."""
+
+    path: str
+    fmt: str  # dataflash, tlog, ulog
+    autopilot: str  # ardupilot, px4
+    named: dict[str, Series]
+    outputs_t: np.ndarray
+    outputs: np.ndarray  # (samples, 16) servo outputs, us; NaN where not logged
+    roll: Series | None  # deg
+    roll_rate: Series | None  # deg/s
+    airspeed: Series | None  # m/s
+    events: list[FcEvent] = field(default_factory=list)
+    params: dict[str, float] = field(default_factory=dict)
+    aileron_channels: list[int] = field(default_factory=list)  # 1-based outputs that drive an aileron
+    link_loss: dict[str, tuple[int, int]] = field(default_factory=dict)  # source -> (received, lost), tlog only
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def span(self) -> tuple[float, float]:
+        """First and last time of anything logged."""
+        ts = [s.t for s in self.named.values() if len(s)] + [self.outputs_t]
+        ts += [s.t for s in (self.roll, self.roll_rate, self.airspeed) if s is not None]
+        ts = [a for a in ts if a.size]
+        if not ts:
+            return 0.0, 0.0
+        return min(float(a[0]) for a in ts), max(float(a[-1]) for a in ts)
+
+    def output(self, channel: int) -> Series | None:
+        """Servo output ``channel`` (1-based), us, or None when it was never logged."""
+        if not 1 <= channel <= self.outputs.shape[1] or self.outputs_t.size == 0:
+            return None
+        v = self.outputs[:, channel - 1]
+        ok = np.isfinite(v) & (v > 0)
+        return Series(self.outputs_t[ok], v[ok]) if ok.any() else None
+
+
+Progress = Callable[[int, int], None]  # (done, total) bytes or messages
+
+
+def fc_log_format(path: str | os.PathLike) -> str | None:
+    """``dataflash``, ``tlog`` or ``ulog`` from the file name, None for anything else (a CSV)."""
+    return FC_LOG_SUFFIXES.get(Path(path).suffix.lower())
+
+
+def read_fc_log(path: str | os.PathLike, progress: Progress | None = None) -> FcLog:
+    """Read a ``.BIN``, ``.tlog`` or ``.ulg``; raises UserError with a one-line reason when it cannot."""
+    p = Path(path)
+    fmt = fc_log_format(p)
+    if fmt is None:
+        raise UserError(f"{p}: not a flight controller log (.BIN, .tlog or .ulg)")
+    if not p.is_file():
+        raise UserError(f"{p}: no such file")
+    if p.stat().st_size == 0:
+        raise UserError(f"{p}: empty file")
+    reader = {"dataflash": _read_dataflash, "tlog": _read_tlog, "ulog": _read_ulog}[fmt]
+    out = reader(p, progress)
+    for n in out.notes:
+        log.info("%s: %s", p, n)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+
+
+class _Columns:
+    """Accumulates (t, value) pairs per key, then makes sorted ``Series``."""
+
+    def __init__(self) -> None:
+        self.t: dict[str, list[float]] = {}
+        self.v: dict[str, list[float]] = {}
+
+    def add(self, key: str, t: float, v: float) -> None:
+        if v is None or not math.isfinite(v) or not math.isfinite(t):
+            return
+        self.t.setdefault(key, []).append(t)
+        self.v.setdefault(key, []).append(float(v))
+
+    def series(self) -> dict[str, Series]:
+        out = {}
+        for k in self.t:
+            out[k] = _series(np.array(self.t[k]), np.array(self.v[k]))
+        return out
+
+
+def _series(t: np.ndarray, v: np.ndarray) -> Series:
+    """Sorted by time, repeated stamps keep the last value."""
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    if t.size > 1:
+        last = np.ones(t.size, bool)
+        last[:-1] = np.diff(t) > 0
+        t, v = t[last], v[last]
+    return Series(t, v)
+
+
+def _text(x: object) -> str:
+    if isinstance(x, bytes | bytearray):
+        x = bytes(x).split(b"\0", 1)[0].decode("ascii", "replace")
+    return str(x).rstrip("\0").strip()
+
+
+def _outputs_array(rows: list[tuple[float, list[float]]]) -> tuple[np.ndarray, np.ndarray]:
+    if not rows:
+        return np.zeros(0), np.zeros((0, MAX_CHANNELS))
+    t = np.array([r[0] for r in rows])
+    a = np.full((len(rows), MAX_CHANNELS), np.nan)
+    for i, (_, vals) in enumerate(rows):
+        n = min(len(vals), MAX_CHANNELS)
+        a[i, :n] = vals[:n]
+    order = np.argsort(t, kind="stable")
+    return t[order], a[order]
+
+
+def ardupilot_ailerons(params: dict[str, float]) -> list[int]:
+    """1-based outputs whose ``SERVOn_FUNCTION`` is an aileron."""
+    return sorted(int(k[5:-9]) for k, v in params.items()
+                  if k.startswith("SERVO") and k.endswith("_FUNCTION") and k[5:-9].isdigit()
+                  and int(v) == ARDUPILOT_AILERON_FUNCTION)
+
+
+def px4_ailerons(params: dict[str, float]) -> list[int]:
+    """1-based PWM outputs whose function is a servo that the control allocation calls an aileron."""
+    out = []
+    for k, v in params.items():
+        if k.startswith("PWM_MAIN_FUNC") and k[13:].isdigit():
+            servo = int(v) - PX4_SERVO_FUNCTION0
+            if 0 <= servo < 8 and int(params.get(f"CA_SV_CS{servo}_TYPE", 0)) in PX4_AILERON_TYPES:
+                out.append(int(k[13:]))
+    return sorted(out)
+
+
+def _mode_event(t: float, name: str) -> FcEvent:
+    return FcEvent(t, "mode", f"mode {name}")
+
+
+FAILSAFE_WORDS = ("failsafe", "fs_", "fence", "crash", "ekf", "lost")
+
+
+def _text_event(t: float, text: str) -> FcEvent:
+    low = text.lower()
+    if low.startswith("wb "):
+        kind = "failsafe" if "failsafe" in low else "bridge"
+    else:
+        kind = "failsafe" if any(w in low for w in FAILSAFE_WORDS) else "text"
+    return FcEvent(t, kind, text)
+
+
+# ---------------------------------------------------------------------------------------------- DataFlash
+
+DF_TYPES = {"NVAL", "RCOU", "RCO2", "ATT", "RATE", "PIDR", "ARSP", "CTUN", "MODE", "MSG", "PARM", "ERR", "IMU"}
+ERR_SUBSYS = {2: "radio", 5: "radio failsafe", 6: "battery failsafe", 7: "GPS failsafe", 8: "GCS failsafe",
+              9: "fence", 12: "EKF/IMU", 16: "EKF failsafe", 17: "baro", 24: "failsafe", 26: "pilot input"}
+
+
+def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
+    from pymavlink import DFReader
+
+    try:
+        df = DFReader.DFReader_binary(str(p), zero_time_base=False)
+    except Exception as e:  # noqa: BLE001 - a damaged file: one line, not a traceback
+        raise UserError(f"{p}: not a readable DataFlash log ({e})") from None
+    named, other = _Columns(), _Columns()
+    outs: dict[float, list[float]] = {}
+    events: list[FcEvent] = []
+    params: dict[str, float] = {}
+    last_param: dict[str, float] = {}
+    total = max(1, df.data_len)
+    types = [t for t in DF_TYPES if t in df.name_to_id]
+    gyro_seen = False
+    n = 0
+    while True:
+        m = df.recv_match(type=types)
+        if m is None:
+            break
+        n += 1
+        if progress is not None and n % 20000 == 0:
+            progress(df.offset, total)
+        mt = m.get_type()
+        t = getattr(m, "TimeUS", 0) * 1e-6
+        if mt == "NVAL":
+            if getattr(m, "SCom", BRIDGE_COMPONENT) == BRIDGE_COMPONENT:
+                named.add(_text(m.Name), t, m.Value)
+        elif mt in ("RCOU", "RCO2"):
+            first = 1 if mt == "RCOU" else 15
+            row = outs.setdefault(t, [math.nan] * MAX_CHANNELS)
+            for i in range(first, min(first + 14, MAX_CHANNELS + 1)):
+                v = getattr(m, f"C{i}", None)
+                if v is None and mt == "RCO2":
+                    v = getattr(m, f"C{i - first + 1}", None)
+                if v is not None:
+                    row[i - 1] = float(v)
+        elif mt == "ATT":
+            other.add("roll", t, m.Roll)
+        elif mt == "RATE":
+            other.add("rate", t, m.R)
+        elif mt == "PIDR":
+            other.add("pidr", t, m.Act)
+        elif mt == "IMU" and getattr(m, "I", 0) == 0:
+            gyro_seen = True
+            other.add("gyro", t, math.degrees(m.GyrX))
+        elif mt == "ARSP" and getattr(m, "I", 0) == 0:
+            other.add("airspeed", t, m.Airspeed)
+        elif mt == "CTUN" and hasattr(m, "As"):
+            other.add("ctun_as", t, m.As)
+        elif mt == "MODE":
+            events.append(_mode_event(t, _ardupilot_mode_name(df, m)))
+        elif mt == "MSG":
+            events.append(_text_event(t, _text(m.Message)))
+        elif mt == "PARM":
+            name, value = _text(m.Name), float(m.Value)
+            if name in last_param and last_param[name] != value:
+                events.append(FcEvent(t, "param", f"{name} {last_param[name]:g} -> {value:g}"))
+            last_param[name] = value
+            params.setdefault(name, value)
+        elif mt == "ERR":
+            sub = ERR_SUBSYS.get(int(m.Subsys), f"subsystem {int(m.Subsys)}")
+            kind = "failsafe" if "failsafe" in sub or int(m.ECode) != 0 else "text"
+            events.append(FcEvent(t, kind, f"ERR {sub} code {int(m.ECode)}"))
+    if progress is not None:
+        progress(total, total)
+    o = other.series()
+    # final parameter values: the ones the flight ended with (PARM re-logged on change)
+    params.update(last_param)
+    t_out, a_out = _outputs_array(sorted(outs.items()))
+    # roll rate: RATE (Copter-style logs), else the IMU's gyro, else the roll controller's PIDR.Act (its
+    # own measurement, current only while the controller runs)
+    rate = o.get("rate") or (o.get("gyro") if gyro_seen else None) or o.get("pidr")
+    airspeed = o.get("airspeed") or o.get("ctun_as")
+    fl = FcLog(path=str(p), fmt="dataflash", autopilot="ardupilot", named=named.series(), outputs_t=t_out,
+               outputs=a_out, roll=o.get("roll"), roll_rate=rate, airspeed=airspeed,
+               events=sorted(events, key=lambda e: e.t), params=params, aileron_channels=ardupilot_ailerons(params))
+    _note_contents(fl)
+    return fl
+
+
+def _ardupilot_mode_name(df, m) -> str:
+    mode = getattr(m, "Mode", None)
+    num = getattr(m, "ModeNum", None)
+    try:
+        from pymavlink import mavutil
+
+        names = mavutil.mode_mapping_bynumber(mavutil.mavlink.MAV_TYPE_FIXED_WING) or {}
+        if num is not None and int(num) in names:
+            return names[int(num)]
+    except Exception:  # noqa: BLE001 - a name is a nicety
+        pass
+    return str(num if num is not None else mode)
+
+
+def _note_contents(fl: FcLog) -> None:
+    if not fl.named:
+        fl.notes.append("no named values of the bridge in this log (ArduPilot: NVAL; PX4: debug_key_value with "
+                        "the logger's debug topics on; tlog: NAMED_VALUE_FLOAT from component 191)")
+    else:
+        rates = sorted(s.rate_hz for s in fl.named.values() if len(s) > 2)
+        if rates:
+            fl.notes.append(f"{len(fl.named)} named values of the bridge, median {rates[len(rates) // 2]:.1f} Hz")
+    if fl.outputs_t.size == 0:
+        fl.notes.append("no servo outputs logged")
+
+
+# ---------------------------------------------------------------------------------------------- tlog
+
+
+class _ClockMap:
+    """Ground-station reception time -> FC boot time, from the FC's stamped messages (median offset)."""
+
+    def __init__(self) -> None:
+        self.pairs: list[float] = []
+
+    def add(self, wall: float, boot_s: float) -> None:
+        self.pairs.append(wall - boot_s)
+
+    def offset(self) -> float | None:
+        if not self.pairs:
+            return None
+        # the smallest transit is the truest; a low percentile resists a stray early stamp
+        return float(np.percentile(self.pairs, 5))
+
+
+def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
+    from pymavlink import mavutil
+
+    try:
+        mlog = mavutil.mavlink_connection(str(p), dialect="ardupilotmega", notimestamps=False)
+    except Exception as e:  # noqa: BLE001
+        raise UserError(f"{p}: not a readable tlog ({e})") from None
+    named_wall, other_wall = _Columns(), _Columns()
+    other_boot = _Columns()
+    outs: list[tuple[float, list[float]]] = []
+    texts: list[tuple[float, str]] = []
+    modes: list[tuple[float, int, int]] = []
+    params: dict[str, float] = {}
+    param_changes: list[tuple[float, str, float, float]] = []
+    clock = _ClockMap()
+    seqs: dict[str, tuple[int, int, int]] = {}  # source -> (last seq, received, lost)
+    fc_sys: int | None = None
+    autopilot = "ardupilot"
+    us_unwrap = _Unwrap()
+    size = max(1, p.stat().st_size)
+    types = ["NAMED_VALUE_FLOAT", "SERVO_OUTPUT_RAW", "ATTITUDE", "VFR_HUD", "HEARTBEAT", "STATUSTEXT",
+             "PARAM_VALUE", "SYSTEM_TIME", "ACTUATOR_OUTPUT_STATUS"]
+    n = 0
+    while True:
+        try:
+            m = mlog.recv_match(type=types)
+        except Exception as e:  # noqa: BLE001 - a truncated tail
+            log.debug("tlog read stopped: %s", e)
+            break
+        if m is None:
+            break
+        n += 1
+        if progress is not None and n % 20000 == 0:
+            progress(mlog.f.tell() if hasattr(mlog, "f") else 0, size)
+        mt = m.get_type()
+        wall = float(getattr(m, "_timestamp", 0.0))
+        src_sys, src_comp = m.get_srcSystem(), m.get_srcComponent()
+        key = f"{src_sys}/{src_comp}"
+        seq = m.get_seq()
+        last = seqs.get(key)
+        if last is None:
+            seqs[key] = (seq, 1, 0)
+        else:
+            gap = (seq - last[0] - 1) % 256
+            seqs[key] = (seq, last[1] + 1, last[2] + (gap if gap < 128 else 0))
+        if mt == "HEARTBEAT" and src_comp == 1 and m.type != mavutil.mavlink.MAV_TYPE_GCS:
+            fc_sys = src_sys
+            autopilot = "px4" if m.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
+            if not modes or modes[-1][1] != m.custom_mode:
+                modes.append((wall, int(m.custom_mode), int(m.type)))
+            continue
+        if mt == "NAMED_VALUE_FLOAT" and src_comp == BRIDGE_COMPONENT:
+            named_wall.add(_text(m.name), wall, m.value)
+        elif mt == "STATUSTEXT":
+            texts.append((wall, _text(m.text)))
+        elif src_comp != 1 or (fc_sys is not None and src_sys != fc_sys):
+            continue
+        elif mt == "SERVO_OUTPUT_RAW":
+            t = us_unwrap(int(m.time_usec)) * 1e-6
+            clock.add(wall, t)
+            vals = [float(getattr(m, f"servo{i}_raw", 0) or math.nan) for i in range(1, MAX_CHANNELS + 1)]
+            if m.port:
+                vals = [math.nan] * (8 * m.port) + vals[: MAX_CHANNELS - 8 * m.port]
+            outs.append((t, vals))
+        elif mt == "ACTUATOR_OUTPUT_STATUS":
+            t = m.time_usec * 1e-6
+            clock.add(wall, t)
+            outs.append((t, [float(v) if v else math.nan for v in m.actuator][:MAX_CHANNELS]))
+        elif mt == "ATTITUDE":
+            t = m.time_boot_ms * 1e-3
+            clock.add(wall, t)
+            other_boot.add("roll", t, math.degrees(m.roll))
+            other_boot.add("rate", t, math.degrees(m.rollspeed))
+        elif mt == "SYSTEM_TIME":
+            clock.add(wall, m.time_boot_ms * 1e-3)
+        elif mt == "VFR_HUD":
+            other_wall.add("airspeed", wall, m.airspeed)
+        elif mt == "PARAM_VALUE":
+            name = _text(m.param_id)
+            if name in params and params[name] != m.param_value:
+                param_changes.append((wall, name, params[name], float(m.param_value)))
+            params[name] = float(m.param_value)
+    if progress is not None:
+        progress(size, size)
+    offset = clock.offset()
+    notes = []
+    if offset is None:
+        offset = 0.0
+        notes.append("no FC time stamps (ATTITUDE, SYSTEM_TIME, SERVO_OUTPUT_RAW): times are the ground station's")
+
+    def shift(cols: _Columns) -> dict[str, Series]:
+        return {k: Series(s.t - offset, s.v) for k, s in cols.series().items()}
+
+    named = shift(named_wall)
+    ob = other_boot.series()
+    ow = shift(other_wall)
+    events = [_text_event(w - offset, s) for w, s in texts]
+    events += [FcEvent(w - offset, "param", f"{name} {a:g} -> {b:g}") for w, name, a, b in param_changes]
+    for w, mode, vtype in modes[1:] if len(modes) > 1 else modes:
+        events.append(_mode_event(w - offset, _tlog_mode_name(mode, vtype, autopilot)))
+    t_out, a_out = _outputs_array(outs)
+    ail = px4_ailerons(params) if autopilot == "px4" else ardupilot_ailerons(params)
+    loss = {k: (v[1], v[2]) for k, v in seqs.items()}
+    fl = FcLog(path=str(p), fmt="tlog", autopilot=autopilot, named=named, outputs_t=t_out, outputs=a_out,
+               roll=ob.get("roll"), roll_rate=ob.get("rate"), airspeed=ow.get("airspeed"),
+               events=sorted(events, key=lambda e: e.t), params=params, aileron_channels=ail, link_loss=loss,
+               notes=notes)
+    _note_contents(fl)
+    return fl
+
+
+def _tlog_mode_name(mode: int, vtype: int, autopilot: str) -> str:
+    from pymavlink import mavutil
+
+    if autopilot == "ardupilot":
+        names = mavutil.mode_mapping_bynumber(vtype) or {}
+        return names.get(mode, str(mode))
+    return str(mode)
+
+
+class _Unwrap:
+    """Unwraps a 32-bit microsecond counter (SERVO_OUTPUT_RAW.time_usec)."""
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.base = 0
+
+    def __call__(self, us: int) -> int:
+        if self.last is not None and us < self.last - US_WRAP // 2:
+            self.base += US_WRAP
+        self.last = us
+        return self.base + us
+
+
+# ---------------------------------------------------------------------------------------------- ULog
+
+PX4_NAV_STATES = {0: "MANUAL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO_MISSION", 4: "AUTO_LOITER", 5: "AUTO_RTL",
+                  10: "ACRO", 12: "DESCEND", 13: "TERMINATION", 14: "OFFBOARD", 15: "STAB", 17: "AUTO_TAKEOFF",
+                  18: "AUTO_LAND", 19: "AUTO_FOLLOW_TARGET", 20: "AUTO_PRECLAND", 21: "ORBIT"}
+
+
+def _read_ulog(p: Path, progress: Progress | None) -> FcLog:
+    try:
+        from pyulog import ULog
+    except ImportError as e:
+        raise UserError(f"{p}: reading PX4 logs needs pyulog (pip install pyulog)") from e
+    topics = ["debug_key_value", "actuator_outputs", "vehicle_attitude", "vehicle_angular_velocity",
+              "airspeed_validated", "airspeed", "vehicle_status"]
+    if progress is not None:
+        progress(0, 1)
+    try:
+        ulog = ULog(str(p), topics)
+    except Exception as e:  # noqa: BLE001
+        raise UserError(f"{p}: not a readable ULog ({e})") from None
+    if progress is not None:
+        progress(1, 1)
+    data = {}
+    for d in ulog.data_list:
+        if d.multi_id == 0 or d.name not in data:
+            data.setdefault(d.name, d)
+    named: dict[str, Series] = {}
+    if "debug_key_value" in data:
+        d = data["debug_key_value"].data
+        t = d["timestamp"] * 1e-6
+        keys = np.column_stack([d[f"key[{i}]"] for i in range(10) if f"key[{i}]" in d]).astype(np.uint8)
+        names = np.array([bytes(r).split(b"\0", 1)[0].decode("ascii", "replace") for r in keys])
+        for name in np.unique(names):
+            sel = names == name
+            named[str(name)] = _series(t[sel], d["value"][sel].astype(np.float64))
+    t_out, a_out = np.zeros(0), np.zeros((0, MAX_CHANNELS))
+    if "actuator_outputs" in data:
+        d = data["actuator_outputs"].data
+        t_out = d["timestamp"] * 1e-6
+        a_out = np.full((t_out.size, MAX_CHANNELS), np.nan)
+        for i in range(MAX_CHANNELS):
+            if f"output[{i}]" in d:
+                a_out[:, i] = d[f"output[{i}]"]
+    roll = rate = airspeed = None
+    if "vehicle_attitude" in data:
+        d = data["vehicle_attitude"].data
+        q0, q1, q2, q3 = (d[f"q[{i}]"] for i in range(4))
+        roll = _series(d["timestamp"] * 1e-6, np.degrees(np.arctan2(2 * (q0 * q1 + q2 * q3),
+                                                                    1 - 2 * (q1 * q1 + q2 * q2))))
+    if "vehicle_angular_velocity" in data:
+        d = data["vehicle_angular_velocity"].data
+        rate = _series(d["timestamp"] * 1e-6, np.degrees(d["xyz[0]"].astype(np.float64)))
+    for topic, fieldname in (("airspeed_validated", "calibrated_airspeed_m_s"),
+                             ("airspeed", "indicated_airspeed_m_s")):
+        if airspeed is None and topic in data and fieldname in data[topic].data:
+            d = data[topic].data
+            airspeed = _series(d["timestamp"] * 1e-6, d[fieldname].astype(np.float64))
+    events: list[FcEvent] = []
+    if "vehicle_status" in data:
+        d = data["vehicle_status"].data
+        ns = d["nav_state"]
+        change = np.flatnonzero(np.r_[True, np.diff(ns) != 0])
+        for i in change:
+            events.append(_mode_event(d["timestamp"][i] * 1e-6, PX4_NAV_STATES.get(int(ns[i]), str(int(ns[i])))))
+        if "failsafe" in d:
+            fs = d["failsafe"].astype(int)
+            for i in np.flatnonzero(np.diff(fs) > 0) + 1:
+                events.append(FcEvent(d["timestamp"][i] * 1e-6, "failsafe", "PX4 failsafe"))
+    for m in ulog.logged_messages:
+        events.append(_text_event(m.timestamp * 1e-6, m.message))
+    for ts, name, value in ulog.changed_parameters:
+        if ts > ulog.start_timestamp:
+            events.append(FcEvent(ts * 1e-6, "param", f"{name} -> {value:g}"))
+    params = {k: float(v) for k, v in ulog.initial_parameters.items()}
+    fl = FcLog(path=str(p), fmt="ulog", autopilot="px4", named=named, outputs_t=t_out, outputs=a_out, roll=roll,
+               roll_rate=rate, airspeed=airspeed, events=sorted(events, key=lambda e: e.t), params=params,
+               aileron_channels=px4_ailerons(params))
+    if "debug_key_value" not in data:
+        fl.notes.append("no debug_key_value topic: turn the logger's debug topics on (SDLOG_PROFILE) to log "
+                        "the bridge's named values")
+    _note_contents(fl)
+    return fl
