@@ -1,0 +1,99 @@
+"""docs/results.md is what benchmarks/results_page.py makes of the archives, and the page says whose figures
+they are: this code's, or (stale) the sources the newest archive was computed on."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import results_page  # noqa: E402
+from blind_archive import case_file, write_rows  # noqa: E402
+from blind_lofo import key  # noqa: E402
+
+DEFAULT = key({"alpha": 0.05, "min_gain": 0.5, "min_share": 0.1})
+NOTHING = key({"alpha": 0.001, "min_gain": 2.0, "min_share": 0.5})  # a decision that names nothing
+FAMILIES = ("dahl", "sheath")
+
+
+def result(fam: str, seed: int, k: int, truth: list[str], verdict: list[str], sources: str) -> dict:
+    """A case result as the blind benchmark stores it, reduced to what the scoring reads."""
+    return {"family": fam, "seed": seed, "plant_index": 0, "case": k, "plant": f"{fam}-s{seed}-0", "truth": truth,
+            "verdict": verdict, "default_decision": DEFAULT, "sources": sources, "seconds": 10.0 + k,
+            "by_decision": {DEFAULT: {"verdict": verdict, "gap_closed": 0.9, "gap_closed_bare": 0.8},
+                            NOTHING: {"verdict": [], "gap_closed": 0.0, "gap_closed_bare": 0.0}},
+            "check_rms_nominal": 0.2, "check_rms_nominal_without_effects": 0.1, "check_rms_bare": 0.2,
+            "check_rms_bare_without_effects": 0.1, "effect_rms_deg": 0.1, "bench_misfit_deg": 0.01}
+
+
+def archive(folder: Path, sources: str, miss: bool = False) -> Path:
+    """An archive of two families, seeds 0, 1, 2 and 9: per plant a no-effect case, two singles and a pair, all
+    named right under the default (``miss``: the pair of seed 9's sheath named as one of its effects)."""
+    rows = []
+    for fam in FAMILIES:
+        for seed in (0, 1, 2, 9):
+            cases = [([], []), (["delay"], ["delay"]), (["drift"], ["drift"]), (["drift", "friction"],) * 2]
+            for k, (truth, verdict) in enumerate(cases):
+                if miss and (fam, seed, k) == ("sheath", 9, 3):
+                    verdict = ["drift"]
+                rows.append((case_file((fam, seed, 0, k)), result(fam, seed, k, truth, verdict, sources)))
+    name = results_page.results_dir(Path("."), magnitude=results_page.MAGNITUDE).name
+    out = folder / f"{name[:-12]}{sources}{results_page.SUFFIX}"
+    write_rows(out, sorted(rows))
+    return out
+
+
+def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_beside(tmp_path):
+    here = results_page.source_hash(results_page.DIAG_SOURCES)
+    archive(tmp_path, here)
+    archive(tmp_path, "0123456789ab", miss=True)  # not in git: ordered by name, so it counts as older
+    inp = results_page.gather(tmp_path)
+    assert inp.current and inp.shown.sources == here and inp.before.sources == "0123456789ab"
+    text = results_page.render(inp)
+    assert "Stale" not in text and f"These are the figures of this code: its diagnosis sources hash to `{here}`" \
+        in text
+    # every single named, under the decision chosen on the other family (the default: the other names nothing)
+    assert "| **pooled** | each family's own | 8/8 (100%) | 4/4 (100%) | 0/4 | 90% / 90% | 8/8, 4/4, 0/4, 90% |" \
+        in text
+    # the code before missed one pair of the fresh seeds
+    assert "| the code before (sources 0123456789ab), pooled | each family's own | 8/8 (100%) | 3/4 (75%) |" in text
+    assert results_page.render(results_page.gather(tmp_path)) == text  # the same inputs give the same page
+
+
+def test_without_this_codes_archive_every_table_says_it_is_stale(tmp_path):
+    archive(tmp_path, "0123456789ab")
+    text = results_page.render(results_page.gather(tmp_path))
+    assert "**Stale: no archive holds this code's results**" in text
+    tables = text.count("\n### ")
+    assert tables == 5 and text.count("**Stale: of the sources `0123456789ab`, not of this code.**") == tables
+
+
+def test_check_says_whether_the_page_is_up_to_date(tmp_path, capsys):
+    (tmp_path / "a").mkdir()
+    archive(tmp_path / "a", "0123456789ab")
+    page = tmp_path / "results.md"
+    args = ["--archives", str(tmp_path / "a"), "--out", str(page)]
+    assert results_page.main([*args, "--check"]) == 1 and not page.exists()
+    assert results_page.main(args) == 0
+    assert results_page.main([*args, "--check"]) == 0
+    page.write_text(page.read_text().replace("8/8", "7/8"))
+    assert results_page.main([*args, "--check"]) == 1
+    assert "out of date" in capsys.readouterr().err
+
+
+def test_docs_results_is_up_to_date_with_the_archives_and_this_code():
+    text = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    recorded = results_page.page_digest(text)
+    assert recorded is not None, "docs/results.md does not say what it was made from"
+    assert recorded == results_page.inputs_digest(results_page.gather()), (
+        "docs/results.md is out of date (the archives, the diagnosis sources or the page's scripts changed): run "
+        "python benchmarks/results_page.py")
+
+
+@pytest.mark.parametrize("line", ["# Measured figures", "<!-- hand-written -->"])
+def test_a_page_without_the_generated_first_line_records_no_digest(line):
+    assert results_page.page_digest(line + "\n") is None
