@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "predict": ("warpbridge.bridge.commands.predict", "predict warp from a log's tendon input with a model"),
     "diagnose": ("warpbridge.bridge.commands.diagnose", "find and explain the gap between a model and a log"),
     "calibrate": ("warpbridge.bridge.commands.calibrate", "pre-flight self-calibration of the tendon model"),
+    "review": ("warpbridge.bridge.commands.review", "review a flight from the FC's log and the cycle log"),
 }
 
 
