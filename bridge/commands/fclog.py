@@ -253,46 +253,49 @@ def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
         if progress is not None and n % 20000 == 0:
             progress(df.offset, total)
         mt = m.get_type()
-        t = getattr(m, "TimeUS", 0) * 1e-6
+        t = _f(m, "TimeUS", 0) * 1e-6
         if mt == "NVAL":
-            if getattr(m, "SCom", BRIDGE_COMPONENT) == BRIDGE_COMPONENT:
-                named.add(_text(m.Name), t, m.Value)
+            if _f(m, "SCom", BRIDGE_COMPONENT) == BRIDGE_COMPONENT:
+                named.add(_text(_f(m, "Name", "")), t, _f(m, "Value"))
         elif mt in ("RCOU", "RCO2"):
             first = 1 if mt == "RCOU" else 15
             row = outs.setdefault(t, [math.nan] * MAX_CHANNELS)
             for i in range(first, min(first + 14, MAX_CHANNELS + 1)):
-                v = getattr(m, f"C{i}", None)
+                v = _f(m, f"C{i}")
                 if v is None and mt == "RCO2":
-                    v = getattr(m, f"C{i - first + 1}", None)
+                    v = _f(m, f"C{i - first + 1}")
                 if v is not None:
                     row[i - 1] = float(v)
         elif mt == "ATT":
-            other.add("roll", t, m.Roll)
+            other.add("roll", t, _f(m, "Roll"))
         elif mt == "RATE":
-            other.add("rate", t, m.R)
+            other.add("rate", t, _f(m, "R"))
         elif mt == "PIDR":
-            other.add("pidr", t, m.Act)
-        elif mt == "IMU" and getattr(m, "I", 0) == 0:
+            other.add("pidr", t, _f(m, "Act"))
+        elif mt == "IMU" and _f(m, "I", 0) == 0:
             gyro_seen = True
-            other.add("gyro", t, math.degrees(m.GyrX))
-        elif mt == "ARSP" and getattr(m, "I", 0) == 0:
-            other.add("airspeed", t, m.Airspeed)
-        elif mt == "CTUN" and hasattr(m, "As"):
-            other.add("ctun_as", t, m.As)
+            gx = _f(m, "GyrX")
+            if gx is not None:
+                other.add("gyro", t, math.degrees(gx))
+        elif mt == "ARSP" and _f(m, "I", 0) == 0:
+            other.add("airspeed", t, _f(m, "Airspeed"))
+        elif mt == "CTUN":
+            other.add("ctun_as", t, _f(m, "As"))
         elif mt == "MODE":
             events.append(_mode_event(t, _ardupilot_mode_name(df, m)))
         elif mt == "MSG":
-            events.append(_text_event(t, _text(m.Message)))
+            events.append(_text_event(t, _text(_f(m, "Message", ""))))
         elif mt == "PARM":
-            name, value = _text(m.Name), float(m.Value)
+            name, value = _text(_f(m, "Name", "")), float(_f(m, "Value", math.nan))
             if name in last_param and last_param[name] != value:
                 events.append(FcEvent(t, "param", f"{name} {last_param[name]:g} -> {value:g}"))
             last_param[name] = value
             params.setdefault(name, value)
         elif mt == "ERR":
-            sub = ERR_SUBSYS.get(int(m.Subsys), f"subsystem {int(m.Subsys)}")
-            kind = "failsafe" if "failsafe" in sub or int(m.ECode) != 0 else "text"
-            events.append(FcEvent(t, kind, f"ERR {sub} code {int(m.ECode)}"))
+            subsys, code = int(_f(m, "Subsys", 0)), int(_f(m, "ECode", 0))
+            sub = ERR_SUBSYS.get(subsys, f"subsystem {subsys}")
+            kind = "failsafe" if "failsafe" in sub and code != 0 else "text"
+            events.append(FcEvent(t, kind, f"ERR {sub} code {code}"))
     if progress is not None:
         progress(total, total)
     o = other.series()
@@ -308,6 +311,15 @@ def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
                events=sorted(events, key=lambda e: e.t), params=params, aileron_channels=ardupilot_ailerons(params))
     _note_contents(fl)
     return fl
+
+
+def _f(m, name: str, default=None):
+    """Field ``name`` of a DataFlash message, ``default`` when this log's format lacks it (formats change
+    between firmware versions)."""
+    try:
+        return getattr(m, name)
+    except AttributeError:
+        return default
 
 
 def _ardupilot_mode_name(df, m) -> str:

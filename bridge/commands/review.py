@@ -452,10 +452,13 @@ def main(args: argparse.Namespace) -> int:
             raise UserError("--bands: give at least two edges")
     log.info("reading %s", args.log)
     fc = read_fc_log(args.log, progress=_progress(args.quiet))
+    f0, f1 = fc.span
+    log.info("read %.0f s of flight from %s in %.1f s", f1 - f0, args.log, time.perf_counter() - t0)
     cl = read_cycle_log(args.cyclelog) if args.cyclelog else None
     rv, flight, al = review(fc, cl, channel=args.channel, bands=bands, trim_us=args.trim,
                             half_range_us=args.half_range)
     t_read = time.perf_counter() - t0
+    log.info("joined and analysed in %.1f s; drawing the report", t_read)
     write_html(out, rv, flight, fc, cl, al)
     js = out.with_suffix(".json")
     write_text_atomic(js, summary_json(rv) + "\n")

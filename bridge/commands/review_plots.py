@@ -191,8 +191,16 @@ def fig_link(rv: Review, f: Flight):
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(12, 3.8), gridspec_kw={"width_ratios": [3, 2]})
     ax = axes[0]
-    t, lat = _thin(f.t, f.latency_ms)
-    ax.plot(t, lat, lw=0.6, color="tab:purple")
+    ok = np.isfinite(f.latency_ms)
+    if ok.sum() > 2:  # per second: the median age and the oldest
+        sec = np.floor(f.t[ok]).astype(np.int64)
+        edges = np.flatnonzero(np.r_[True, np.diff(sec) > 0, True])
+        mids = [f.t[ok][a:b].mean() for a, b in zip(edges[:-1], edges[1:], strict=False)]
+        med = [np.median(f.latency_ms[ok][a:b]) for a, b in zip(edges[:-1], edges[1:], strict=False)]
+        top = [np.max(f.latency_ms[ok][a:b]) for a, b in zip(edges[:-1], edges[1:], strict=False)]
+        ax.fill_between(mids, med, top, color="tab:purple", alpha=0.25, label="oldest in the second")
+        ax.plot(mids, med, color="tab:purple", lw=1.2, label="median per second")
+        ax.legend(fontsize=8)
     ax.set_xlabel("time, s (FC clock)")
     ax.set_ylabel("servo output age at use, ms")
     ax.set_title(f"latency ({rv.link.latency_source})", fontsize=9)
@@ -227,7 +235,7 @@ def fig_join(al: Alignment, f: Flight, fc: FcLog, cl: CycleLog):
         s = ail[1]
         k = (s.t > mid - 5) & (s.t < mid + 5)
         ax2 = ax.twinx()
-        ax2.plot(s.t[k], s.v[k], ".-", color="0.4", ms=2, lw=0.6, label=f"FC output {ail[0]} (FC log)")
+        ax2.plot(s.t[k], s.v[k], ".--", color="tab:orange", ms=3, lw=0.8, label=f"FC output {ail[0]} (FC log)")
         ax2.set_ylabel("FC output, us")
         ax2.legend(loc="upper right", fontsize=8)
     ax.legend(loc="upper left", fontsize=8)
