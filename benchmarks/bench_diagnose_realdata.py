@@ -1,6 +1,6 @@
 """Local benchmark (not a test): diagnose measured tendon-sheath data with a model from another configuration.
 
-    python benchmarks/bench_diagnose_realdata.py [--data DIR] [--base 0] [--keep DIR]
+    python benchmarks/bench_diagnose_realdata.py [--data DIR] [--base 0] [--keep DIR] [--json OUT]
 
 Uses the TSM-KAIST measurements (``<data>/README.md``: a tendon-sheath joint of
 an endoscopic surgery robot; ``N.txt`` with N the sheath bend in degrees,
@@ -14,6 +14,9 @@ Steps: ``identify`` on the base configuration; ``diagnose`` every other bend
 and the base configuration's other-amplitude runs; prints what it names, the
 held-out shrinkage inside the log, and how far the gap shrinks when the
 augmented model predicts the files it did not fit (the neighbouring bends).
+``--json OUT`` also writes those figures, keyed by the hash of the diagnosis's sources as the blind
+benchmark's archives are (``benchmarks/results/realdata-diagnose-<hash>.json`` is what
+``results_page.py`` reads).
 """
 
 from __future__ import annotations
@@ -30,8 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbridge.bridge.cli import main as cli
-from warpbridge.bridge.commands.logfile import write_csv_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_diagnose_blind import DIAG_SOURCES, source_hash  # noqa: E402
+
+from warpbridge.bridge.cli import main as cli  # noqa: E402
+from warpbridge.bridge.commands.logfile import write_csv_atomic  # noqa: E402
 
 # the data sit beside the repository (``<repo>/../shared/realdata/tsm-kaist``) unless told otherwise
 DEFAULT = Path(os.environ.get("WARPBRIDGE_REALDATA",
@@ -77,6 +84,7 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=DEFAULT)
     ap.add_argument("--base", default="0", help="bend configuration identified (default 0)")
     ap.add_argument("--keep", type=Path, default=None, help="keep logs, models and reports here")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
     args = ap.parse_args()
     if not (args.data / f"{args.base}.txt").is_file():
         print(f"skipped: no measured data at {args.data} (set --data or WARPBRIDGE_REALDATA)")
@@ -95,6 +103,9 @@ def main() -> int:
             return 1
         md = json.loads(model.read_text())
         fit = md["fit"]
+        record = {"benchmark": "bench_diagnose_realdata", "sources": source_hash(DIAG_SOURCES),
+                  "data": "tsm-kaist", "base": args.base,
+                  "identified": {k: fit[k] for k in ("train_rms_deg", "heldout_rms_deg", "noise_deg")}, "logs": []}
         print(f"identified bend {args.base}: training RMS {fit['train_rms_deg']:.3f}, held-out RMS "
               f"{fit['heldout_rms_deg']:.3f} deg, noise {fit['noise_deg']:.3f} deg")
         em = md.get("model_error")
@@ -115,7 +126,7 @@ def main() -> int:
             sh = rep["shrinkage"]
             gc = sh["gap_closed"]
             verdict = ", ".join(rep["verdict"]) or "[]"
-            others = []
+            others, others_rms = [], []
             if name.isdigit():
                 i = bends.index(int(name))
                 for j in (i - 1, i + 1):
@@ -123,7 +134,15 @@ def main() -> int:
                         o = logs[str(bends[j])]
                         r0, r1 = rms_of(o, model, tmp), rms_of(o, aug, tmp)
                         others.append(f"bend{bends[j]} {r0:.2f} -> {r1:.2f}")
+                        others_rms.append({"log": str(bends[j]), "nominal_rms_deg": r0, "augmented_rms_deg": r1})
             gap = f"{gc:.0%}" if gc is not None and math.isfinite(gc) else "n/a"
+            record["logs"].append({
+                "log": name, "verdict": rep["verdict"], "effects": rep["effects"],
+                "kept_unnamed": {n: k["fitted"] for n, k in (rep.get("kept_unnamed") or {}).items()},
+                "ambiguous": [a["equally_good"] for a in rep["ambiguities"]],
+                "heldout_rms_before_deg": sh["heldout_rms_before_deg"],
+                "heldout_rms_after_deg": sh["heldout_rms_after_deg"],
+                "gap_closed": gc, "other_logs": others_rms})
             print(f"{name:<10} {verdict:<34} {sh['heldout_rms_before_deg']:>9.3f} -> "
                   f"{sh['heldout_rms_after_deg']:<8.3f} {gap:>6}   {'; '.join(others)}")
             for n, p in rep["effects"].items():
@@ -140,6 +159,9 @@ def main() -> int:
             conf = {c["effect"]: c["confidence"] for c in rep["candidates"] if c.get("in_verdict")}
             if conf:
                 print(f"{'':<10}   confidence: " + ", ".join(f"{k} {v:.2f}" for k, v in conf.items()))
+    if args.json:
+        args.json.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+        print(f"wrote {args.json}")
     return 0
 
 

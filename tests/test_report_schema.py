@@ -67,6 +67,38 @@ def test_diagnose_writes_reports_the_schema_accepts(written):
     assert none["verdict"] == [] and none["model_error_from_check"] is not None and "out_model" not in none
 
 
+# parts of reports diagnose wrote that the two diagnoses above do not produce (a bend of the measured-data
+# benchmark, simulated field logs with an aero load, a slew limit, a two-stage sensor lag), numbers rounded and
+# reasons cut short
+WRITTEN_PARTS = {
+    "left_over": {"heldout_rms_deg": 0.6256, "floor_deg": 0.05166, "block_s": [18.04, 20.0], "share_of_excess": 0.5621,
+                  "mostly": True, "block_peak_speed_mm_s": 2.271, "train_peak_speed_mm_s": 5.326,
+                  "block_travel_mm": [4.418, 5.64], "train_travel_mm": [3.777, 6.679],
+                  "block_peak_airspeed_m_s": 18.0, "train_peak_airspeed_m_s": 15.24, "beyond_training": ["airspeed"]},
+    "dropped": [{"effect": "pretension", "reason": "its held-out gain grows faster than the dynamic pressure",
+                 "gain_by_airspeed": {"q_slow_kpa": 0.06572, "q_fast_kpa": 0.154, "gain_slow_ms": 0.09377,
+                                      "gain_fast_ms": 0.9182, "fast_over_slow": 9.792}}],
+    "kept_unnamed": {"friction": {"fitted": {"capstan_pull_ratio": 0.008467, "capstan_release_ratio": 0.08277,
+                                             "capstan_zero_mm": -61.81},
+                                  "band_factor": 1.289, "compliance_factor": 1.167, "stretch_share": 0.6073,
+                                  "reason": "the friction band widened (x1.29) with the rig's compliance"}},
+    "bound_hits": [{"effect": "sensor_lag", "parameter": "sensor_stage_ratio", "bound": "upper", "limit": 1.0,
+                    "value": 1.0, "meaning": "sensor_lag: sensor_stage_ratio sits at the upper bound of its search"}],
+    "band_gain_by_airspeed": [{"effect": "backlash", "q_slow_kpa": 0.05821, "q_fast_kpa": 0.1322,
+                               "gain_slow_ms": 0.02437, "gain_fast_ms": 0.03529, "fast_over_slow": 1.448}],
+    "model_error_carried": {"nominal": {"bench_gain_ms": 0.0468, "field_gain_ms": -1.236, "se_ms": 0.9414,
+                                        "p_value": 0.103}, "short": False, "raised_by_ms": 0.0,
+                            "known_error_deg": 0.7935},
+}
+
+
+@pytest.mark.parametrize("key", sorted(WRITTEN_PARTS))
+def test_the_parts_other_logs_give_are_accepted(written, key):
+    doc = copy.deepcopy(written["report"])
+    doc[key] = WRITTEN_PARTS[key]
+    validate_report(doc)
+
+
 def _broken(doc: dict, edit) -> dict:
     doc = copy.deepcopy(doc)
     edit(doc)
@@ -84,6 +116,10 @@ def _broken(doc: dict, edit) -> dict:
     ("a candidate tried without its rounds", lambda r: r["candidates"][0].pop("rounds")),
     ("a count that is not an integer", lambda r: r.update(samples=12.5)),
     ("a dominant dimension that does not exist", lambda r: r["where"].update(dominant="colour")),
+    ("a bound that is neither edge", lambda r: r.update(bound_hits=[dict(WRITTEN_PARTS["bound_hits"][0],
+                                                                             bound="middle")])),
+    ("a left-over block of three ends", lambda r: r.update(left_over=dict(WRITTEN_PARTS["left_over"],
+                                                                           block_s=[1.0, 2.0, 3.0]))),
 ])
 def test_a_broken_report_is_rejected(written, what, edit):
     validate_report(written["report"])

@@ -3,6 +3,7 @@ they are: this code's, or (stale) the sources the newest archive was computed on
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -47,10 +48,22 @@ def archive(folder: Path, sources: str, miss: bool = False) -> Path:
     return out
 
 
+def realdata(folder: Path, sources: str) -> None:
+    """bench_diagnose_realdata's figures as ``--json`` writes them: one bend named a pre-tension."""
+    rec = {"benchmark": "bench_diagnose_realdata", "sources": sources, "data": "tsm-kaist", "base": "0",
+           "identified": {"train_rms_deg": 0.76, "heldout_rms_deg": 0.95, "noise_deg": 0.06},
+           "logs": [{"log": "120", "verdict": ["pretension"], "effects": {"pretension": {"pretension_gain": 0.75}},
+                     "kept_unnamed": {}, "ambiguous": [], "heldout_rms_before_deg": 11.57,
+                     "heldout_rms_after_deg": 1.02, "gap_closed": 0.99,
+                     "other_logs": [{"log": "60", "nominal_rms_deg": 6.8, "augmented_rms_deg": 4.44}]}]}
+    (folder / f"realdata-diagnose-{sources}.json").write_text(json.dumps(rec))
+
+
 def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_beside(tmp_path):
     here = results_page.source_hash(results_page.DIAG_SOURCES)
     archive(tmp_path, here)
     archive(tmp_path, "0123456789ab", miss=True)  # not in git: ordered by name, so it counts as older
+    realdata(tmp_path, here)
     inp = results_page.gather(tmp_path)
     assert inp.current and inp.shown.sources == here and inp.before.sources == "0123456789ab"
     text = results_page.render(inp)
@@ -61,15 +74,18 @@ def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_
         in text
     # the code before missed one pair of the fresh seeds
     assert "| the code before (sources 0123456789ab), pooled | each family's own | 8/8 (100%) | 3/4 (75%) |" in text
+    assert "| bend 120 | `pretension` (pretension_gain 0.75) | 11.57 -> 1.02 (99%) | bend 60: 6.80 -> 4.44 |" in text
     assert results_page.render(results_page.gather(tmp_path)) == text  # the same inputs give the same page
 
 
-def test_without_this_codes_archive_every_table_says_it_is_stale(tmp_path):
+def test_without_this_codes_results_every_table_says_it_is_stale(tmp_path):
     archive(tmp_path, "0123456789ab")
+    realdata(tmp_path, "ba9876543210")
     text = results_page.render(results_page.gather(tmp_path))
     assert "**Stale: no archive holds this code's results**" in text
     tables = text.count("\n### ")
     assert tables == 5 and text.count("**Stale: of the sources `0123456789ab`, not of this code.**") == tables
+    assert "**Stale: of the sources `ba9876543210`, not of this code**" in text
 
 
 def test_check_says_whether_the_page_is_up_to_date(tmp_path, capsys):
