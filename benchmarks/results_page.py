@@ -122,12 +122,25 @@ def _added_at(path: Path) -> int | None:
     return int(out[-1]) if out else None
 
 
+NO_HISTORY = "file name (no git history)"
+
+
+def _full_history() -> bool:
+    """The checkout has its whole git history (a shallow clone's first commit adds every file at once)."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True,
+                             text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return False
+    return out == "false"
+
+
 def newest_first(archives: list[Path]) -> tuple[list[Path], str]:
     """The archives, newest first by the commit that added each (an archive not yet committed counts as newest),
-    and how they were ordered."""
-    added = {p: _added_at(p) for p in archives}
+    and how they were ordered (by name, ``NO_HISTORY``, outside a checkout with its whole history)."""
+    added = {p: _added_at(p) for p in archives} if _full_history() else {}
     if all(v is None for v in added.values()):
-        return sorted(archives, reverse=True), "file name (no git history)"
+        return sorted(archives, reverse=True), NO_HISTORY
     return sorted(archives, key=lambda p: (-(added[p] or math.inf), p.name)), "the commit that added each archive"
 
 

@@ -62,10 +62,10 @@ def realdata(folder: Path, sources: str) -> None:
 def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_beside(tmp_path):
     here = results_page.source_hash(results_page.DIAG_SOURCES)
     archive(tmp_path, here)
-    archive(tmp_path, "0123456789ab", miss=True)  # not in git: ordered by name, so it counts as older
+    archive(tmp_path, "000000000000", miss=True)  # not in git: ordered by name, so it counts as older
     realdata(tmp_path, here)
     inp = results_page.gather(tmp_path)
-    assert inp.current and inp.shown.sources == here and inp.before.sources == "0123456789ab"
+    assert inp.current and inp.shown.sources == here and inp.before.sources == "000000000000"
     text = results_page.render(inp)
     assert "Stale" not in text and f"These are the figures of this code: its diagnosis sources hash to `{here}`" \
         in text
@@ -73,7 +73,7 @@ def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_
     assert "| **pooled** | each family's own | 8/8 (100%) | 4/4 (100%) | 0/4 | 90% / 90% | 8/8, 4/4, 0/4, 90% |" \
         in text
     # the code before missed one pair of the fresh seeds
-    assert "| the code before (sources 0123456789ab), pooled | each family's own | 8/8 (100%) | 3/4 (75%) |" in text
+    assert "| the code before (sources 000000000000), pooled | each family's own | 8/8 (100%) | 3/4 (75%) |" in text
     assert "| bend 120 | `pretension` (pretension_gain 0.75) | 11.57 -> 1.02 (99%) | bend 60: 6.80 -> 4.44 |" in text
     assert results_page.render(results_page.gather(tmp_path)) == text  # the same inputs give the same page
 
@@ -105,7 +105,10 @@ def test_docs_results_is_up_to_date_with_the_archives_and_this_code():
     text = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
     recorded = results_page.page_digest(text)
     assert recorded is not None, "docs/results.md does not say what it was made from"
-    assert recorded == results_page.inputs_digest(results_page.gather()), (
+    inputs = results_page.gather()
+    if inputs.ordered_by == results_page.NO_HISTORY:
+        pytest.skip("no whole git history (a shallow clone or an unpacked sdist): the archives' order is unknown")
+    assert recorded == results_page.inputs_digest(inputs), (
         "docs/results.md is out of date (the archives, the diagnosis sources or the page's scripts changed): run "
         "python benchmarks/results_page.py")
 
