@@ -1,6 +1,6 @@
 """The paper's controller comparison in lock-step SITL, like for like, beside the paper's bench figures.
 
-    python benchmarks/bench_sitl_compare.py [--seeds 5] [--workers 2] [--model MODEL.json] [--out DIR]
+    python benchmarks/bench_sitl_compare.py [--seeds 5] [--workers 2] [--model MODEL.json] [--out DIR] [--json OUT]
 
 Like for like (``sitl.like_for_like``): the simulated wing is the physics-based tendon-sheath plant
 (``sitl.sheath``: friction nodes along a 270 deg sheath, an elastic tendon, pre-tension), not the
@@ -13,18 +13,25 @@ and in gusts at 7 and 12 m/s. Each RMS is scored over two stretches of the same 
 (1-20 s, the ramp-in excluded) and settled (15-60 s); gusts 5-30 s of 30 s runs. Mean over seeds (the
 reference, gusts and sensor noise) and the range. Then, as an upper bound only, the same on the paper's
 own plant with the paper's model in the controller (the controller knows the plant exactly).
+``--json OUT`` also writes every row, keyed by the sources the run imported (``stored.py``;
+``results_page.py`` reads ``benchmarks/results/sitl-compare.json``).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from warpbridge.bridge.controller import MODES
-from warpbridge.sitl.like_for_like import (
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from stored import keyed, write_json  # noqa: E402
+
+from warpbridge.bridge.controller import MODES  # noqa: E402
+from warpbridge.sitl.like_for_like import (  # noqa: E402
     FRICTION_CHANGE,
     PRETENSION_CHANGE,
     bench_params,
@@ -32,10 +39,10 @@ from warpbridge.sitl.like_for_like import (
     rigged,
     sheath_spec,
 )
-from warpbridge.sitl.lockstep import compare
-from warpbridge.sitl.report import comparison_table
-from warpbridge.sitl.scenarios import Rig
-from warpbridge.sitl.wing import WingSpec
+from warpbridge.sitl.lockstep import compare  # noqa: E402
+from warpbridge.sitl.report import comparison_table  # noqa: E402
+from warpbridge.sitl.scenarios import Rig  # noqa: E402
+from warpbridge.sitl.wing import WingSpec  # noqa: E402
 
 POWER_ON = (1.0, 20.0)
 SETTLED = (15.0, 60.0)
@@ -56,6 +63,13 @@ def _progress(what: str):
     return report
 
 
+def row_dict(r) -> dict:
+    """A comparison row as JSON: the RMS per seed (deg), the paper's figure, the window (s; null: to the end)."""
+    lo, hi = r.window
+    return {"scenario": r.scenario, "mode": r.mode, "label": r.label, "rms_deg": list(r.rms), "paper_deg": r.paper,
+            "window_s": [lo, hi if math.isfinite(hi) else None]}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds of the calm like-for-like runs (default 5)")
@@ -66,6 +80,7 @@ def main() -> None:
     ap.add_argument("--max-delay", type=float, default=0.0,
                     help="identify the bench log with this transport delay search (default 0: none, as the bridge's "
                          "model is identified)")
+    ap.add_argument("--json", type=Path, default=None, help="also write every row to this JSON file")
     args = ap.parse_args()
 
     t_start = time.perf_counter()
@@ -103,6 +118,14 @@ def main() -> None:
     print("\nUPPER BOUND, NOT LIKE FOR LIKE: the paper's Bouc-Wen plant with the paper's model in the controller "
           "(the controller knows the plant exactly)")
     print(comparison_table(upper))
+    if args.json:
+        write_json(args.json, keyed({
+            "benchmark": "bench_sitl_compare", "seeds": args.seeds, "few_seeds": args.few_seeds,
+            "max_delay_s": args.max_delay, "model": "identified" if args.model is None else "given",
+            "identification": ident, "pretension_change": PRETENSION_CHANGE, "friction_change": FRICTION_CHANGE,
+            "like_for_like": [row_dict(r) for r in rows + gusts], "upper_bound": [row_dict(r) for r in upper]},
+            also=("warpbridge.bridge.cli", "warpbridge.bridge.commands.identify")))  # identify_bench's subprocess
+        print(f"wrote {args.json}")
     print(f"\n{time.perf_counter() - t_start:.0f} s in all; bench log and model in {out}")
 
 

@@ -15,6 +15,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import results_page  # noqa: E402
 from blind_archive import case_file, write_rows  # noqa: E402
 from blind_lofo import key  # noqa: E402
+from stored import imported_sources, sources_hash, sources_match  # noqa: E402
 
 DEFAULT = key({"alpha": 0.05, "min_gain": 0.5, "min_share": 0.1})
 NOTHING = key({"alpha": 0.001, "min_gain": 2.0, "min_share": 0.5})  # a decision that names nothing
@@ -59,11 +60,31 @@ def realdata(folder: Path, sources: str) -> None:
     (folder / f"realdata-diagnose-{sources}.json").write_text(json.dumps(rec))
 
 
+def sitl(folder: Path, files_hash: str | None = None) -> None:
+    """bench_sitl_compare's figures as ``--json`` writes them: two seeds calm, one in gusts, the paper's beside."""
+    paper = {"open": 1.727, "pi": 2.04, "ff+pi": 0.285}
+
+    def row(scenario, mode, window, rms, label=""):
+        return {"scenario": scenario, "mode": mode, "label": label, "rms_deg": rms, "window_s": window,
+                "paper_deg": None if label else paper.get(mode)}
+
+    calm = [row("random", m, w, [base * f, base * f * 1.2]) for w, f in (([1.0, 20.0], 1.1), ([15.0, 60.0], 1.0))
+            for m, base in (("open", 1.0), ("pi", 0.5), ("ff", 0.3), ("ff+pi", 0.1))]
+    calm.append(row("random", "pi", [15.0, 60.0], [0.8, 0.9], "paper-horn gains"))
+    gusts = [row(g, m, [5.0, 30.0], [0.2]) for g in ("gust7", "gust12") for m in ("open", "pi", "ff", "ff+pi")]
+    files = ["model/boucwen.py"]
+    rec = {"benchmark": "bench_sitl_compare", "seeds": 2, "few_seeds": 1, "pretension_change": 1.4,
+           "friction_change": 1.15, "like_for_like": calm + gusts, "upper_bound": calm[:8],
+           "sources": {"files": files, "hash": files_hash or sources_hash(files)}}
+    (folder / results_page.SITL).write_text(json.dumps(rec))
+
+
 def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_beside(tmp_path):
     here = results_page.source_hash(results_page.DIAG_SOURCES)
     archive(tmp_path, here)
     archive(tmp_path, "000000000000", miss=True)  # not in git: ordered by name, so it counts as older
     realdata(tmp_path, here)
+    sitl(tmp_path)
     inp = results_page.gather(tmp_path)
     assert inp.current and inp.shown.sources == here and inp.before.sources == "000000000000"
     text = results_page.render(inp)
@@ -75,17 +96,38 @@ def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_
     # the code before missed one pair of the fresh seeds
     assert "| the code before (sources 000000000000), pooled | each family's own | 8/8 (100%) | 3/4 (75%) |" in text
     assert "| bend 120 | `pretension` (pretension_gain 0.75) | 11.57 -> 1.02 (99%) | bend 60: 6.80 -> 4.44 |" in text
+    # the SITL table: each mode's mean and range over seeds, the PI with the paper's gains, the paper's row
+    assert ("| scenario | open loop | PI only | feed-forward | feed-forward + PI | PI only, paper-horn gains |"
+            in text)
+    assert "| calm, settled | 1.100 (1.000-1.200) | 0.550 (0.500-0.600) | 0.330 (0.300-0.360) |" in text
+    assert "| gusts 12 m/s | 0.200 | 0.200 | 0.200 | 0.200 |  |" in text
+    assert "| paper, bench (Lee et al. 2017) | 1.727 | 2.04 |  | 0.285 |  |" in text
     assert results_page.render(results_page.gather(tmp_path)) == text  # the same inputs give the same page
 
 
 def test_without_this_codes_results_every_table_says_it_is_stale(tmp_path):
     archive(tmp_path, "0123456789ab")
     realdata(tmp_path, "ba9876543210")
+    sitl(tmp_path, files_hash="000000000000")
     text = results_page.render(results_page.gather(tmp_path))
     assert "**Stale: no archive holds this code's results**" in text
     tables = text.count("\n### ")
     assert tables == 5 and text.count("**Stale: of the sources `0123456789ab`, not of this code.**") == tables
     assert "**Stale: of the sources `ba9876543210`, not of this code**" in text
+    assert "**Stale: of the sources `000000000000`; some of the files that run imported have changed since.**" \
+        in text
+
+
+def test_stored_figures_are_keyed_by_the_project_files_the_process_imported(tmp_path):
+    files = imported_sources()
+    assert "benchmarks/results_page.py" in files and "bridge/commands/diagnose.py" in files
+    assert all((ROOT / f).is_file() for f in files)  # every one a file of this repository
+    (tmp_path / "model").mkdir()
+    (tmp_path / "model" / "a.py").write_text("x = 1\n")
+    rec = {"sources": {"files": ["model/a.py"], "hash": sources_hash(["model/a.py"], tmp_path)}}
+    assert sources_match(rec, tmp_path)
+    (tmp_path / "model" / "a.py").write_text("x = 2\n")
+    assert not sources_match(rec, tmp_path)
 
 
 def test_check_says_whether_the_page_is_up_to_date(tmp_path, capsys):
