@@ -316,10 +316,13 @@ def test_a_changed_output_function_is_judged_again(plane, bridge_factory):
 # the three logs (how tests/data/ was made).
 
 FLIGHT_PARAMS = (
-    "LOG_BITMASK 8338\n"  # ATTITUDE_MED (ATT, PIDR at 10 Hz) | CTUN | IMU (IMU, ARSP) | RC (RCIN, RCOU)
-    "LOG_DISARMED 0\n"  # the log starts at arming
-    "TKOFF_ALT 40\n"
-    "SR0_EXTRA1 10\nSR0_EXTRA2 10\nSR0_RAW_CTRL 10\nSR0_EXTRA3 2\nSR0_POSITION 5\n"  # the tlog's streams
+    "LOG_BITMASK 8209\n"  # ATTITUDE_FAST (ATT, PIDR at 25 Hz) | CTUN (airspeed) | RC (RCIN, RCOU)
+    "LOG_DISARMED 0\n"
+    "EK2_ENABLE 0\nEK3_LOG_LEVEL 3\nSIM_ESC_TELEM 0\n"  # a small log: no EKF2, no EKF3 or ESC streams
+    "TKOFF_ALT 50\n"
+    # the tlog's streams: ATTITUDE 10 Hz, VFR_HUD 5 Hz, positions and status 2 Hz (SERVO_OUTPUT_RAW 10 Hz: Gcs)
+    "SR0_EXTRA1 10\nSR0_EXTRA2 5\nSR0_POSITION 2\nSR0_EXT_STAT 2\nSR0_RAW_SENS 0\nSR0_RC_CHAN 0\n"
+    "SR0_RAW_CTRL 0\nSR0_EXTRA3 0\nSR0_ADSB 0\n"
 )
 MODE_FBWA, MODE_TAKEOFF = 5, 13
 
@@ -369,7 +372,7 @@ class FlightGcs(Gcs):
         self.mav.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
 
 
-def fly(folder: Path, sweep_s: float = 30.0) -> dict[str, Path]:
+def fly(folder: Path, sweep_s: float = 36.0) -> dict[str, Path]:
     """One flight; returns the paths of the DataFlash log, the tlog and the bridge's cycle log."""
     import tomllib
 
@@ -384,7 +387,7 @@ def fly(folder: Path, sweep_s: float = 30.0) -> dict[str, Path]:
         ap.wait_listening()
         gcs = FlightGcs(ap.gcs_port, folder / "flight.tlog")
         assert wait_for(lambda: gcs.fc_heartbeat, 30.0), "no heartbeat from ArduPlane"
-        gcs.mav.mav.request_data_stream_send(1, 1, mavlink.MAV_DATA_STREAM_ALL, 10, 1)
+        gcs.mav.mav.param_request_list_send(1, 1)  # as a ground station does on connecting: the tlog has them
         rig = Rig()
         wings = make_wings(make_scenario("steps", 600.0, rig=rig), WingSpec(), w0_deg=rig.bias_deg, grid=True)
         vrig = VirtualRig(rig, wings)
@@ -414,9 +417,10 @@ def fly(folder: Path, sweep_s: float = 30.0) -> dict[str, Path]:
         gcs.mav.mav.param_set_send(1, 1, b"RLL2SRV_TCONST", 0.45, mavlink.MAV_PARAM_TYPE_REAL32)  # an event
         t0 = time.monotonic()
         while (el := time.monotonic() - t0) < sweep_s:  # aileron: sine sweeps of growing amplitude, with holds
-            amp = 150 + 250 * min(1.0, el / sweep_s * 1.5)
+            amp = 150 + 250 * min(1.0, (el % (sweep_s / 3)) / (sweep_s / 3) * 1.5)
             phase = el % 6.0
             gcs.stick = int(1500 + (amp * math.sin(2 * math.pi * phase / 3.0) if phase < 4.5 else 0))
+            gcs.throttle = (2000, 1700, 1450)[min(2, int(3 * el / sweep_s))]  # three airspeeds
             vrig.tick()
             time.sleep(0.02)
         gcs.stick = 1500
@@ -459,6 +463,10 @@ def test_a_flight_reviewed_from_the_fcs_dataflash_log_and_the_cycle_log(tmp_path
     assert al is not None and al.method == "fc_t" and al.check_corr > 0.8, al
     assert abs(al.residual_s) < 0.05, al
     assert rv.tracking["left"]["all"][0].n > 1000
-    assert rv.roll_authority and all(g.gain > 0 for g in rv.roll_authority if g.n > 100), rv.roll_authority
+    # right stick: the left wing gains lift (left - right > 0) and the aircraft rolls right; the bands of
+    # the takeoff run (on the ground, no roll) fit nothing, the cruise band fits well
+    cruise = max(rv.roll_authority, key=lambda g: g.n)
+    assert cruise.gain > 0 and cruise.r2 > 0.7, rv.roll_authority
+    assert all(g.gain > 0 for g in rv.roll_authority if g.r2 > 0.5), rv.roll_authority
     tl = read_fc_log(files["tlog"])
     assert "L_sp" in tl.named and tl.output(1) is not None

@@ -210,7 +210,8 @@ def _mode_event(t: float, name: str) -> FcEvent:
     return FcEvent(t, "mode", f"mode {name}")
 
 
-FAILSAFE_WORDS = ("failsafe", "fs_", "fence", "crash", "ekf", "lost")
+FAILSAFE_WORDS = ("failsafe", "crash", "variance", "breach")
+HOUSEKEEPING_PARAMS = ("STAT_", "BARO1_GND", "BARO2_GND", "BARO3_GND")  # the FC rewrites these itself
 
 
 def _text_event(t: float, text: str) -> FcEvent:
@@ -287,7 +288,7 @@ def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
             events.append(_text_event(t, _text(_f(m, "Message", ""))))
         elif mt == "PARM":
             name, value = _text(_f(m, "Name", "")), float(_f(m, "Value", math.nan))
-            if name in last_param and last_param[name] != value:
+            if name in last_param and last_param[name] != value and not name.startswith(HOUSEKEEPING_PARAMS):
                 events.append(FcEvent(t, "param", f"{name} {last_param[name]:g} -> {value:g}"))
             last_param[name] = value
             params.setdefault(name, value)
@@ -446,7 +447,7 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
             other_wall.add("airspeed", wall, m.airspeed)
         elif mt == "PARAM_VALUE":
             name = _text(m.param_id)
-            if name in params and params[name] != m.param_value:
+            if name in params and params[name] != m.param_value and not name.startswith(HOUSEKEEPING_PARAMS):
                 param_changes.append((wall, name, params[name], float(m.param_value)))
             params[name] = float(m.param_value)
     if progress is not None:

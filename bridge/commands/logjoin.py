@@ -51,7 +51,9 @@ class CycleLog:
 
     @property
     def rate_hz(self) -> float:
-        return 1.0 / float(np.median(np.diff(self.t))) if self.t.size > 2 else 0.0
+        """Rows per second (the loop's rate, and more where the bridge also ran a cycle on a fresh message)."""
+        span = float(self.t[-1] - self.t[0]) if self.t.size > 2 else 0.0
+        return (self.t.size - 1) / span if span > 0 else 0.0
 
     def differential(self) -> np.ndarray:
         """Left minus right warp setpoint, deg: the roll command as the wings see it."""
@@ -180,12 +182,15 @@ def xcorr_lag(ta: np.ndarray, a: np.ndarray, tb: np.ndarray, b: np.ndarray, lag_
     norm = np.where(overlap > 0, np.abs(cc) / min(ga.size, gb.size), 0.0)
     norm[~ok] = -1.0
     k = int(np.argmax(norm))
+    # the correlation coefficient at the peak, over the overlap
+    i0, i1 = max(0, -ks[k]), min(ga.size, gb.size - ks[k])
+    r = abs(float(np.corrcoef(ga[i0:i1], gb[i0 + ks[k]:i1 + ks[k]])[0, 1])) if i1 - i0 > 2 else math.nan
     frac = 0.0
     if 0 < k < norm.size - 1 and ok[k - 1] and ok[k + 1]:
         y0, y1, y2 = norm[k - 1], norm[k], norm[k + 1]
         den = y0 - 2 * y1 + y2
         frac = 0.5 * (y0 - y2) / den if den < 0 else 0.0
-    return float(lags[k] + frac * dt), float(norm[k])
+    return float(lags[k] + frac * dt), r
 
 
 def _stamp_offset(cl: CycleLog) -> tuple[float, float, float, float, int] | None:

@@ -41,6 +41,7 @@ BAND_WIDTH_MS = 3.0
 MIN_BAND_SAMPLES = 30
 LAG_GRID_S = np.arange(0.0, 0.42, 0.02)  # roll rate follows the warp after this much at most
 PHASES = ("loading", "unloading", "after reversal", "holding")
+MIN_FIT_R2 = 0.5  # a band's fit explains less than this: too few or too small manoeuvres, no FF implied
 
 
 # ------------------------------------------------------------------------------------------------ data
@@ -108,6 +109,7 @@ class GainFit:
     r2: float
     output_gain: float  # deg/s per unit of the FC's aileron output (-1..1)
     ff_ardupilot: float  # RLL_RATE_FF that gives this rate from the output at the band's airspeed
+    reliable: bool  # R2 >= MIN_FIT_R2: the band's manoeuvres support the fit
 
 
 @dataclass
@@ -139,6 +141,7 @@ class Review:
     roll_authority: list[GainFit]
     roll_lag_s: float
     roll_uses_measured_warp: bool
+    fc_roll_ff: float  # the FC's RLL_RATE_FF in the log's parameters (NaN when absent: PX4, a tlog without them)
     link: LinkStats
     events: list[FcEvent]
     warnings: list[str]
@@ -161,13 +164,23 @@ MODE_NAMES = {0.0: "open", 1.0: "pi", 2.0: "ff", 3.0: "ff+pi", -1.0: "failsafe"}
 
 
 def flight_from_cycle_log(cl: CycleLog, fc: FcLog, al: Alignment) -> Flight:
+    """The cycle log's rows on the FC's clock, over the span the FC logged (ArduPilot starts its log at
+    arming by default: the bridge's rows before it have nothing to be joined to)."""
     t = al.fc_time(cl.t)
-    wings = {w: WingTrack(cl.wing[w]["setpoint"], cl.wing[w]["warp"], cl.wing[w]["u"]) for w in WINGS}
+    f0, f1 = fc.span
+    keep = (t >= f0) & (t <= f1)
+    if keep.sum() < 10:
+        raise UserError(f"the cycle log ({cl.t.size} rows) does not overlap the FC's log ({f0:.0f}..{f1:.0f} s on "
+                        "the FC's clock): logs of different flights?")
+    t = t[keep]
+    wings = {w: WingTrack(cl.wing[w]["setpoint"][keep], cl.wing[w]["warp"][keep], cl.wing[w]["u"][keep])
+             for w in WINGS}
     ail = aileron_series(fc)
     gap = 0.5
-    airspeed = cl.airspeed if np.isfinite(cl.airspeed).any() else _at(fc.airspeed, t, 2.0)
-    latency = np.full(t.size, np.nan) if cl.fc_t is None else 1e3 * (t - cl.fc_t)
-    events = list(fc.events) + _events_from_modes(t, cl.mode)
+    aspd = cl.airspeed[keep]
+    airspeed = aspd if np.isfinite(aspd).any() else _at(fc.airspeed, t, 2.0)
+    latency = np.full(t.size, np.nan) if cl.fc_t is None else 1e3 * (t - cl.fc_t[keep])
+    events = list(fc.events) + _events_from_modes(t, cl.mode[keep])
     return Flight("cycle log", t, cl.rate_hz, wings, airspeed, _at(ail[1] if ail else None, t, gap),
                   ail[0] if ail else None, _at(fc.roll_rate, t, gap), sorted(events, key=lambda e: e.t), latency)
 
@@ -308,10 +321,11 @@ def roll_authority(f: Flight, bands: list[tuple[float, float]], trim_us: float, 
         k, c, r2 = _fit(delta[sel], p[sel])
         sel_a = sel & np.isfinite(a)
         ka, _, _ = _fit(a[sel_a], p[sel_a])
-        v = 0.5 * (a0 + a1)
+        v = float(np.mean(f.airspeed[sel])) if sel.any() else 0.5 * (a0 + a1)
+        reliable = bool(math.isfinite(r2) and r2 >= MIN_FIT_R2)
         # ArduPlane's roll-rate FF: output (deg of a 45 deg full throw) = rate * FF * SCALING_SPEED / airspeed
-        ff = 45.0 * v / (abs(ka) * scaling_speed) if math.isfinite(ka) and ka != 0 else math.nan
-        fits.append(GainFit(f"{a0:g}-{a1:g} m/s", a0, a1, int(sel.sum()), k, c, r2, ka, ff))
+        ff = 45.0 * v / (abs(ka) * scaling_speed) if reliable and math.isfinite(ka) and ka != 0 else math.nan
+        fits.append(GainFit(f"{a0:g}-{a1:g} m/s", a0, a1, int(sel.sum()), k, c, r2, ka, ff, reliable))
     return fits, best_lag
 
 
@@ -376,7 +390,8 @@ def review(fc: FcLog, cl: CycleLog | None, *, channel: int | None = None, bands:
                 source=flight.source, rate_hz=flight.rate_hz, duration_s=span,
                 alignment=None if al is None else {**asdict(al), "residual_s": al.residual_s},
                 tracking=tracking(flight, band_list), roll_authority=fits, roll_lag_s=lag,
-                roll_uses_measured_warp=flight.differential()[1], link=link_stats(flight, fc, cl),
+                roll_uses_measured_warp=flight.differential()[1],
+                fc_roll_ff=float(fc.params.get("RLL_RATE_FF", math.nan)), link=link_stats(flight, fc, cl),
                 events=[e for e in flight.events if flight.t[0] - 1 <= e.t <= flight.t[-1] + 1] if span else [],
                 warnings=warnings, notes=notes)
     for w in warnings:
@@ -473,8 +488,8 @@ def main(args: argparse.Namespace) -> int:
         if s.n:
             print(f"{w} wing: tracking RMS {s.rms:.3f} deg, 95% {s.p95:.3f} deg over {s.n} samples")
     for g in rv.roll_authority:
-        print(f"roll authority {g.band}: {g.gain:.2f} deg/s per deg (R2 {g.r2:.2f}, n {g.n}), "
-              f"RLL_RATE_FF ~ {g.ff_ardupilot:.3f}")
+        ff = f"RLL_RATE_FF ~ {g.ff_ardupilot:.3f}" if g.reliable else "too little manoeuvring to fit"
+        print(f"roll authority {g.band}: {g.gain:.2f} deg/s per deg (R2 {g.r2:.2f}, n {g.n}), {ff}")
     for w in rv.warnings:
         print(f"note: {w}")
     print(f"wrote {out} and {js}")

@@ -17,7 +17,7 @@ import numpy as np
 from warpbridge.bridge.commands.fclog import FcLog
 from warpbridge.bridge.commands.logfile import write_text_atomic
 from warpbridge.bridge.commands.logjoin import WINGS, Alignment, CycleLog, aileron_series
-from warpbridge.bridge.commands.review import PHASES, Flight, Review
+from warpbridge.bridge.commands.review import MIN_FIT_R2, PHASES, Flight, Review
 
 MAX_POINTS = 20000  # per line: a long flight is thinned for drawing (never for the numbers)
 EVENT_COLOURS = {"mode": "tab:blue", "param": "tab:purple", "failsafe": "tab:red", "text": "0.5", "bridge": "tab:green"}
@@ -162,8 +162,8 @@ def fig_roll_authority(rv: Review, f: Flight):
         sel = (f.airspeed >= g.lo_ms) & (f.airspeed < g.hi_ms) & np.isfinite(p) & np.isfinite(delta)
         c = cmap(i / max(n - 1, 1))
         d, pp = _thin(delta[sel], p[sel])
-        ax.scatter(d, pp, s=3, color=c, alpha=0.35)
-        if math.isfinite(g.gain):
+        ax.scatter(d, pp, s=3, color=c, alpha=0.35, label=None if g.reliable else f"{g.band}: no fit (R2 {g.r2:.2f})")
+        if math.isfinite(g.gain) and g.reliable:
             xs = np.linspace(np.nanmin(delta[sel]), np.nanmax(delta[sel]), 2)
             ax.plot(xs, g.gain * xs + g.bias, color=c, lw=2, label=f"{g.band}: {g.gain:.2f} deg/s/deg")
     ax.axhline(0, color="k", lw=0.4)
@@ -174,14 +174,22 @@ def fig_roll_authority(rv: Review, f: Flight):
     if rv.roll_authority:
         ax.legend(fontsize=8)
     ax = axes[1]
-    v = [0.5 * (g.lo_ms + g.hi_ms) for g in rv.roll_authority]
-    ax.plot(v, [g.gain for g in rv.roll_authority], "o-", color="tab:red", label="gain, deg/s per deg")
+    good = [g for g in rv.roll_authority if g.reliable]
+    v = [0.5 * (g.lo_ms + g.hi_ms) for g in good]
+    ax.plot(v, [g.gain for g in good], "o-", color="tab:red", label="gain, deg/s per deg")
+    if not good:
+        ax.text(0.5, 0.5, f"no band fits with R2 >= {MIN_FIT_R2}", transform=ax.transAxes, ha="center")
     ax.set_xlabel("airspeed, m/s")
     ax.set_ylabel("roll-rate gain, deg/s per deg", color="tab:red")
     ax2 = ax.twinx()
-    ax2.plot(v, [g.ff_ardupilot for g in rv.roll_authority], "s--", color="tab:blue")
-    ax2.set_ylabel("RLL_RATE_FF implied", color="tab:blue")
-    ax.set_title("gain per band")
+    ax2.plot(v, [g.ff_ardupilot for g in good], "s--", color="tab:blue", label="RLL_RATE_FF implied")
+    top = max([g.ff_ardupilot for g in good] + [rv.fc_roll_ff if math.isfinite(rv.fc_roll_ff) else 0.0, 0.0])
+    if math.isfinite(rv.fc_roll_ff):
+        ax2.axhline(rv.fc_roll_ff, color="tab:blue", lw=0.8, ls=":", label=f"in the log: {rv.fc_roll_ff:.3f}")
+    ax2.set_ylim(0, 1.3 * top if top > 0 else 1.0)
+    ax2.set_ylabel("RLL_RATE_FF", color="tab:blue")
+    ax2.legend(loc="lower right", fontsize=8)
+    ax.set_title(f"gain per band (bands with R2 >= {MIN_FIT_R2})")
     fig.tight_layout()
     return fig
 
@@ -224,7 +232,7 @@ def fig_join(al: Alignment, f: Flight, fc: FcLog, cl: CycleLog):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 3.5))
     ail = aileron_series(fc)
-    diff = cl.differential()
+    diff = f.wings["left"].setpoint - f.wings["right"].setpoint
     # the busiest 10 s of the flight: where the aileron moves most
     mid = f.t[np.nanargmax(np.abs(np.gradient(np.nan_to_num(diff))))] if f.t.size else 0.0
     sel = (f.t > mid - 5) & (f.t < mid + 5)

@@ -1,0 +1,161 @@
+"""Benchmark: ``warpbridge review`` on a long flight: read and join time per minute of flight, and the
+alignment error of the join.
+
+The long flight is the real ArduPlane SITL flight of tests/data stitched end to end ``--copies`` times
+(each copy's DataFlash time stamps, and the cycle log's ``t`` and ``fc_t``, moved on by the flight's
+length), so that it holds what the real one holds, message for message, for about ten minutes.
+
+Times (medians of ``--repeats`` runs): reading the DataFlash log with our reader (pymavlink's DFReader,
+asking only for the message types the review uses), against the baseline a user would write first, a
+plain pass of pymavlink over every message (``recv_match()`` without a type, as ``mavlogdump`` reads);
+reading the cycle log; joining; the analysis; the HTML report. Target (issue 83): under 30 s for a
+10-minute flight, all of it.
+
+Alignment error: the join's residual (the cross-correlation's lag of the bridge's setpoint behind the
+FC's aileron output, less the lag the stamps predict) on the real and the stitched flight; and on the
+synthetic flight of tests/review_synth.py, whose true clock offset is known, the error of each method
+(the stamps, and cross-correlation alone for a cycle log without them).
+
+Run: python benchmarks/bench_review.py [--copies 14] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import struct
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from _common import median_time, table  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
+
+
+def stitch_bin(src: Path, dst: Path, copies: int) -> float:
+    """``copies`` copies of a DataFlash log end to end, each copy's TimeUS moved on by the log's span; the
+    stitched log's span in s."""
+    from pymavlink import DFReader
+
+    df = DFReader.DFReader_binary(str(src))
+    raw = bytearray(src.read_bytes())
+    pos = []  # byte offsets of every TimeUS field (a Q first field named TimeUS)
+    for mtype, fmt in df.formats.items():
+        if fmt.columns and fmt.columns[0] == "TimeUS" and fmt.format.startswith("Q"):
+            pos.extend(o + 3 for o in df.offsets[mtype][: df.counts[mtype]])
+    pos = np.array(sorted(pos), dtype=np.int64)
+    stamps = np.array([struct.unpack_from("<Q", raw, p)[0] for p in pos], dtype=np.int64)
+    live = stamps[stamps > 0]
+    span_us = int(live.max() - live.min()) + 20_000
+    with dst.open("wb") as f:
+        for k in range(copies):
+            out = bytearray(raw)
+            shifted = np.where(stamps > 0, stamps + k * span_us, 0)
+            for p, v in zip(pos.tolist(), shifted.tolist(), strict=True):
+                struct.pack_into("<Q", out, p, v)
+            f.write(out)
+    return copies * span_us * 1e-6, span_us * 1e-6
+
+
+def stitch_cycles(src: Path, dst: Path, copies: int, span_s: float) -> None:
+    with src.open() as fh:
+        rows = list(csv.reader(fh))
+    head, body = rows[0], rows[1:]
+    it, ifc = head.index("t"), head.index("fc_t")
+    with dst.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(head)
+        for k in range(copies):
+            for r in body:
+                r = list(r)
+                r[it] = f"{float(r[it]) + k * span_s:.6f}"
+                if r[ifc] != "nan":
+                    r[ifc] = f"{float(r[ifc]) + k * span_s:.6f}"
+                w.writerow(r)
+
+
+def plain_pass(path: Path) -> int:
+    """The baseline: every message of the log through pymavlink, as mavlogdump reads it."""
+    from pymavlink import mavutil
+
+    m = mavutil.mavlink_connection(str(path))
+    n = 0
+    while m.recv_match() is not None:
+        n += 1
+    return n
+
+
+def synthetic_alignment_errors() -> list[list[object]]:
+    import review_synth as rs
+
+    from warpbridge.bridge.commands.logjoin import align, read_cycle_log
+
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for seed in range(3):
+            fc, cycle = rs.flight(duration=120.0, seed=seed)
+            for stamps in (True, False):
+                cl = read_cycle_log(rs.write_cycle_log(Path(d) / f"c{seed}{stamps}.csv", cycle, with_fc_t=stamps))
+                al = align(cl, fc)
+                # the true clock offset; the stamps cannot see the shortest transit (it lands in the offset),
+                # cross-correlation folds in the mean age of the message a cycle uses
+                truth = rs.OFFSET_S
+                rows.append([f"synthetic seed {seed}", al.method, f"{al.offset_s:.4f}", f"{truth:.4f}",
+                             f"{(al.offset_s - truth) * 1e3:+.2f}", f"{al.residual_s * 1e3:+.2f}"])
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bin", default=str(DATA / "arduplane-flight.BIN"))
+    ap.add_argument("--cycles", default=str(DATA / "arduplane-flight-cycles.csv"))
+    ap.add_argument("--copies", type=int, default=14, help="stitched copies of the flight (default 14)")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+
+    from warpbridge.bridge.commands.fclog import read_fc_log
+    from warpbridge.bridge.commands.logjoin import align, read_cycle_log
+    from warpbridge.bridge.commands.review import review
+    from warpbridge.bridge.commands.review_plots import write_html
+
+    rows, align_rows = [], []
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        for label, copies in (("real flight", 1), (f"stitched x{args.copies}", args.copies)):
+            b, c = d / f"f{copies}.BIN", d / f"f{copies}.csv"
+            total_s, one_s = stitch_bin(Path(args.bin), b, copies)
+            stitch_cycles(Path(args.cycles), c, copies, one_s)
+            minutes = total_s / 60.0
+            t_plain, _ = median_time(lambda b=b: plain_pass(b), repeats=args.repeats, warmup=0)
+            t_read, _ = median_time(lambda b=b: read_fc_log(b), repeats=args.repeats, warmup=0)
+            t_cyc, _ = median_time(lambda c=c: read_cycle_log(c), repeats=args.repeats, warmup=0)
+            fc, cl = read_fc_log(b), read_cycle_log(c)
+            t_join, _ = median_time(lambda cl=cl, fc=fc: align(cl, fc), repeats=args.repeats, warmup=0)
+            t_an, _ = median_time(lambda cl=cl, fc=fc: review(fc, cl), repeats=args.repeats, warmup=0)
+            rv, fl, al = review(fc, cl)
+            t0 = time.perf_counter()
+            write_html(d / "r.html", rv, fl, fc, cl, al)
+            t_html = time.perf_counter() - t0
+            total = t_read + t_cyc + t_an + t_html
+            rows.append([label, f"{total_s:.0f}", f"{b.stat().st_size / 1e6:.1f}", f"{t_plain:.2f}", f"{t_read:.2f}",
+                         f"{t_plain / t_read:.1f}", f"{t_cyc:.2f}", f"{t_join:.3f}", f"{t_an:.2f}", f"{t_html:.2f}",
+                         f"{total:.1f}", f"{(t_read + t_cyc + t_join) / minutes:.2f}"])
+            align_rows.append([label, al.method, f"{al.offset_s:.4f}", "-", "-", f"{al.residual_s * 1e3:+.2f}"])
+    print("Review of a long flight (medians; s unless said)")
+    print(table(rows, ["flight", "flight s", "BIN MB", "plain pass", "read BIN", "x faster", "read cycles",
+                       "join", "analysis", "html", "total", "read+join per min"]))
+    print()
+    align_rows += synthetic_alignment_errors()
+    print("Alignment (offset: FC time = cycle t + offset; error against the known truth where there is one)")
+    print(table(align_rows, ["flight", "method", "offset s", "truth s", "error ms", "residual ms"]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

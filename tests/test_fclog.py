@@ -1,0 +1,224 @@
+"""Reading the flight controller's logs: DataFlash, tlog and ULog (``bridge.commands.fclog``).
+
+The real logs are in tests/data (README.md there says how each was made): a flight of the real
+ArduPlane 4.6.3 SITL with the bridge on its SERIAL1 (its DataFlash log and the ground station's tlog)
+and pyulog's own PX4 sample log. The PX4 sample has no ``debug_key_value`` topic; the test that reads
+one writes it into a copy of the real log with pyulog's writer, and the tlog's clock handling is
+checked on a tlog written here with pymavlink, whose stamps are known.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warpbridge.bridge.commands.fclog import FcLog, fc_log_format, read_fc_log
+from warpbridge.bridge.commands.logfile import read_log
+from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.mavlink_env import mavlink
+
+DATA = Path(__file__).parent / "data"
+BIN = DATA / "arduplane-flight.BIN"
+TLOG = DATA / "arduplane-flight.tlog"
+ULG = DATA / "px4-sample_log_small.ulg"
+BRIDGE_NAMES = {"L_sp", "R_sp", "L_warp", "R_warp", "L_cmd", "R_cmd", "L_ff", "R_ff", "L_pi", "R_pi", "WB_mode",
+                "WB_aspd", "WB_lat"}
+
+
+@pytest.fixture(scope="module")
+def dataflash() -> FcLog:
+    return read_fc_log(BIN)
+
+
+def test_format_follows_the_suffix():
+    assert fc_log_format("a/00000012.BIN") == "dataflash"
+    assert fc_log_format("x.tlog") == "tlog" and fc_log_format("x.ulg") == "ulog"
+    assert fc_log_format("cycles.csv") is None
+
+
+def test_arduplane_dataflash_log_holds_the_bridges_named_values(dataflash):
+    fc = dataflash
+    assert fc.fmt == "dataflash" and fc.autopilot == "ardupilot"
+    assert BRIDGE_NAMES <= set(fc.named), sorted(fc.named)
+    # the bridge sends each name at its telemetry rate, 10 Hz (WB_TLM_HZ)
+    assert fc.named["L_sp"].rate_hz == pytest.approx(10.0, rel=0.15)
+    # ArduPlane's SERVO1_FUNCTION 4 (aileron), from the PARM messages
+    assert fc.aileron_channels == [1] and fc.params["SERVO1_FUNCTION"] == 4
+    ail = fc.output(1)
+    assert ail is not None and 1100 <= np.median(ail.v) <= 1900 and np.ptp(ail.v) > 200
+    assert fc.roll is not None and fc.roll_rate is not None and fc.airspeed is not None
+    assert fc.airspeed.v.max() > 10.0  # it flew
+    kinds = {e.kind for e in fc.events}
+    assert {"mode", "param"} <= kinds, fc.events
+    assert any(e.text == "mode FBWA" for e in fc.events)
+
+
+def test_dataflash_named_values_follow_the_fcs_aileron_through_the_mixer(dataflash):
+    """The bridge's setpoints, as the FC logged them, are its mixer of the output the FC logged: for the
+    left wing (not reversed) 6 + 6 a above trim, 6 (1 + a) below, a = (pwm - 1500) / 400 (bias 6, max 12)."""
+    fc = dataflash
+    sp = fc.named["L_sp"]
+    a = (fc.output(1).at(sp.t - 0.06) - 1500.0) / 400.0  # the value the bridge used ~60 ms earlier
+    ok = np.isfinite(a) & (fc.named["WB_mode"].at(sp.t) == 3.0)
+    expect = np.where(a >= 0, 6 + 6 * np.clip(a, 0, 1), 6 * (1 + np.clip(a, -1, 0)))
+    err = np.abs(sp.v[ok] - expect[ok])
+    assert ok.sum() > 100 and np.median(err) < 0.3, np.median(err)
+
+
+def test_roll_rate_integrates_to_the_roll_angle(dataflash):
+    """The gyro's roll rate, integrated over two seconds, moves the roll angle by as much (an independent
+    record: ATT is the attitude estimate, the rate the IMU's)."""
+    fc = dataflash
+    r, p = fc.roll, fc.roll_rate
+    t = np.arange(max(r.t[0], p.t[0]) + 1, min(r.t[-1], p.t[-1]) - 3, 2.0)
+    errs = []
+    for a in t:
+        sel = (p.t >= a) & (p.t <= a + 2)
+        integral = np.trapezoid(p.v[sel], p.t[sel])
+        errs.append(integral - (r.at(np.array([p.t[sel][-1]]))[0] - r.at(np.array([p.t[sel][0]]))[0]))
+    errs = np.abs(np.array(errs))
+    assert np.median(errs) < 2.0, errs
+
+
+def test_ground_station_tlog_of_the_same_flight(dataflash):
+    tl = read_fc_log(TLOG)
+    assert tl.fmt == "tlog" and tl.autopilot == "ardupilot"
+    assert {"L_sp", "R_sp", "L_warp", "WB_mode"} <= set(tl.named)
+    assert tl.aileron_channels == [1] and tl.output(1) is not None
+    # both put the bridge's values on the FC's clock: the same L_sp at the same FC time (within a link hop)
+    a, b = dataflash.named["L_sp"], tl.named["L_sp"]
+    lo, hi = max(a.t[0], b.t[0]), min(a.t[-1], b.t[-1])
+    grid = np.arange(lo, hi, 0.05)
+    best = min(np.nanmean(np.abs(a.at(grid) - b.at(grid + lag))) for lag in np.arange(-0.3, 0.3, 0.01))
+    assert hi - lo > 20 and best < 0.2, best
+    src = {k: v for k, v in tl.link_loss.items() if k.endswith("/191")}
+    assert src and all(received > 100 for received, _ in src.values())
+
+
+def test_identify_reads_a_dataflash_log_by_wing(caplog):
+    data = read_log(BIN, wing="left")
+    assert data.airspeed is not None and data.warp is not None and len(data) > 100
+    assert "10.0 Hz" in data.notes[0] or "Hz" in data.notes[0]
+    assert any("too low to tell a delay" in n for n in data.notes)  # said plainly
+    with pytest.raises(UserError, match="pass --wing"):
+        read_log(BIN)
+
+
+# ------------------------------------------------------------------------------------------------ PX4
+
+
+def test_px4_ulog_outputs_attitude_rates_and_events():
+    fc = read_fc_log(ULG)
+    assert fc.fmt == "ulog" and fc.autopilot == "px4"
+    assert fc.outputs_t.size > 10 and np.nanmax(fc.outputs[:, 0]) > 1000  # PWM, us
+    assert fc.roll is not None and np.all(np.abs(fc.roll.v) <= 180)
+    assert fc.roll_rate is not None and fc.roll_rate.rate_hz > 100
+    assert fc.airspeed is not None
+    assert fc.events and fc.events[0].text == "mode MANUAL"
+    assert any("Takeoff detected" in e.text for e in fc.events)
+    assert not fc.named and any("debug_key_value" in n for n in fc.notes)
+    # the gyro integrated over the log moves as the attitude does
+    p, r = fc.roll_rate, fc.roll
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (p.v[1:] + p.v[:-1]) * np.diff(p.t))])
+    ra = r.at(p.t)
+    ok = np.isfinite(ra)
+    assert np.max(np.abs(integral[ok] - (ra[ok] - ra[ok][0]))) < 0.2
+
+
+def _with_debug_key_value(src: Path, dst: Path, values: list[tuple[int, str, float]]) -> None:
+    """A copy of a real ULog with a ``debug_key_value`` topic added (what PX4 logs of a NAMED_VALUE_FLOAT
+    with its debug topics on), written by pyulog."""
+    from pyulog import ULog
+
+    u = ULog(str(src))
+    fmt = object.__new__(ULog.MessageFormat)
+    fmt.name, fmt.fields = "debug_key_value", [("uint64_t", 0, "timestamp"), ("char", 10, "key"),
+                                               ("float", 0, "value")]
+    u._message_formats[fmt.name] = fmt
+    d = object.__new__(ULog.Data)
+    d.multi_id, d.name, d.timestamp_idx = 0, fmt.name, 0
+    d.msg_id = max(x.msg_id for x in u.data_list) + 1
+    d.field_data = ([ULog._FieldData("timestamp", "uint64_t")]
+                    + [ULog._FieldData(f"key[{i}]", "char") for i in range(10)] + [ULog._FieldData("value", "float")])
+    keys = np.zeros((len(values), 10), dtype=np.int8)
+    for j, (_, k, _) in enumerate(values):
+        keys[j, : len(k)] = np.frombuffer(k.encode(), dtype=np.int8)
+    d.data = {"timestamp": np.array([v[0] for v in values], dtype=np.uint64),
+              "value": np.array([v[2] for v in values], dtype=np.float32)}
+    d.data.update({f"key[{i}]": keys[:, i] for i in range(10)})
+    u._data_list.append(d)
+    u.write_ulog(str(dst))
+
+
+def test_px4_debug_key_value_are_the_bridges_named_values(tmp_path):
+    vals = []
+    for k in range(60):
+        t = 21_000_000 + 100_000 * k
+        vals += [(t, "L_sp", 6.0 + k / 10), (t + 1000, "R_sp", 6.0 - k / 20), (t + 2000, "L_warp", 5.0)]
+    out = tmp_path / "with_dkv.ulg"
+    _with_debug_key_value(ULG, out, vals)
+    fc = read_fc_log(out)
+    assert set(fc.named) == {"L_sp", "R_sp", "L_warp"}
+    assert fc.named["L_sp"].t[0] == pytest.approx(21.0) and fc.named["L_sp"].rate_hz == pytest.approx(10.0)
+    assert fc.named["R_sp"].v[10] == pytest.approx(5.5)
+
+
+# ------------------------------------------------------------------------------------------------ tlog clock
+
+
+def _tlog(path: Path, boot0: float, wall0: float, drop_bridge: set[int]) -> None:
+    """A tlog as a ground station writes it: 8-byte big-endian microseconds of reception, then the frame."""
+    fc = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    br = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
+    with path.open("wb") as f:
+        def put(conn, msg, wall):
+            buf = msg.pack(conn)
+            conn.seq = (conn.seq + 1) % 256
+            f.write(struct.pack(">Q", int(wall * 1e6)) + buf)
+
+        for k in range(400):
+            boot = boot0 + 0.05 * k  # FC clock
+            wall = wall0 + 0.05 * k + 0.002 + 0.003 * (k % 3)  # reception: 2..8 ms later
+            if k % 20 == 0:
+                put(fc, mavlink.MAVLink_heartbeat_message(1, 3, 0, 0, 0, 3), wall)
+            put(fc, mavlink.MAVLink_attitude_message(int(boot * 1e3) & 0xFFFFFFFF, 0.1, 0, 0, 0.2, 0, 0), wall)
+            usec = int(boot * 1e6) & 0xFFFFFFFF
+            put(fc, mavlink.MAVLink_servo_output_raw_message(usec, 0, 1500 + k, 1500, 1000, 1500, 0, 0, 0, 0), wall)
+            if k % 2 == 0:
+                msg = mavlink.MAVLink_named_value_float_message(k * 50, b"L_sp", float(k))
+                if k in drop_bridge:
+                    br.seq = (br.seq + 1) % 256  # sent, never received
+                else:
+                    put(br, msg, wall + 0.001)
+
+
+def test_tlog_times_go_onto_the_fcs_clock_across_the_32_bit_wrap(tmp_path):
+    # SERVO_OUTPUT_RAW's 32-bit microseconds wrap at 4294.967 s of the FC's boot time: this log crosses it
+    p = tmp_path / "gcs.tlog"
+    _tlog(p, boot0=4290.0, wall0=1.7e9, drop_bridge={10, 12, 50})
+    fc = read_fc_log(p)
+    assert fc.outputs_t.size == 400 and np.all(np.diff(fc.outputs_t) > 0)
+    assert fc.outputs_t[-1] == pytest.approx(4290.0 + 0.05 * 399, abs=1e-5)
+    assert fc.output(1).v[-1] == 1899
+    sp = fc.named["L_sp"]
+    # L_sp = k was received at wall0 + 0.05 k + 2..8 ms + 1 ms: on the FC's clock within the transit
+    t_expected = 4290.0 + 0.05 * sp.v
+    assert np.all(np.abs(sp.t - t_expected) < 0.01)
+    assert fc.link_loss["1/191"] == (197, 3)
+    assert fc.link_loss["1/1"][1] == 0
+
+
+def test_unreadable_logs_are_refused_in_one_line(tmp_path):
+    empty = tmp_path / "e.BIN"
+    empty.write_bytes(b"")
+    with pytest.raises(UserError, match="empty file"):
+        read_fc_log(empty)
+    with pytest.raises(UserError, match="no such file"):
+        read_fc_log(tmp_path / "missing.ulg")
+    bad = tmp_path / "bad.ulg"
+    bad.write_bytes(b"not a ulog at all" * 10)
+    with pytest.raises(UserError, match="not a readable ULog"):
+        read_fc_log(bad)

@@ -1,0 +1,252 @@
+"""``warpbridge review``: the join, the analysis and the report.
+
+On the real ArduPlane SITL flight of tests/data (its DataFlash log, the ground station's tlog and the
+bridge's cycle log) and on a synthetic flight (``review_synth``) whose clock offset, transit, roll-rate
+gains and lag are set by construction, so the expectations come from outside the code under test.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import review_synth as rs
+
+from warpbridge.bridge.commands import review as review_cmd
+from warpbridge.bridge.commands.fclog import read_fc_log
+from warpbridge.bridge.commands.logjoin import align, read_cycle_log, xcorr_lag
+from warpbridge.bridge.commands.review import PHASES, _lost, phases, review
+from warpbridge.bridge.errors import UserError
+
+DATA = Path(__file__).parent / "data"
+BIN = DATA / "arduplane-flight.BIN"
+TLOG = DATA / "arduplane-flight.tlog"
+CYCLES = DATA / "arduplane-flight-cycles.csv"
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    fc, cycle = rs.flight()
+    folder = tmp_path_factory.mktemp("synth")
+    return fc, cycle, read_cycle_log(rs.write_cycle_log(folder / "cycles.csv", cycle))
+
+
+# ------------------------------------------------------------------------------------------------ stamps
+
+
+def test_the_link_keeps_the_fcs_stamp_and_the_cycle_log_writes_it(tmp_path):
+    """SERVO_OUTPUT_RAW and ACTUATOR_OUTPUT_STATUS carry the FC's boot time: the link keeps the latest
+    (``servo_fc_time``, s) and the cycle log writes it as ``fc_t``."""
+    import time
+
+    from helpers import free_udp_port
+
+    from warpbridge.bridge.cyclelog import CycleLog as Writer
+    from warpbridge.bridge.link import FcLink
+    from warpbridge.bridge.mavlink_env import mavlink, mavutil
+
+    port = free_udp_port()
+    link = FcLink(f"udpin:127.0.0.1:{port}", servo_rate_hz=50)
+    assert link.open()
+    peer = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=7, source_component=1)
+    try:
+        def pump(until) -> bool:
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and not until():
+                link.poll()
+                time.sleep(0.002)
+            return until()
+
+        peer.mav.heartbeat_send(mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+        assert pump(lambda: link.system_id == 7)
+        assert link.servo_fc_time is None
+        peer.mav.servo_output_raw_send(123_456_789, 0, 1500, *([0] * 15))
+        assert pump(lambda: link.servo_fc_time is not None)
+        assert link.servo_fc_time == pytest.approx(123.456789)
+        peer.mav.actuator_output_status_send(200_000_000, 4, [1100.0] * 4 + [0.0] * 28)
+        assert pump(lambda: link.servo_fc_time == pytest.approx(200.0))
+    finally:
+        link.close()
+        peer.close()
+    path = tmp_path / "c.csv"
+    with Writer(path) as w:
+        for k in range(12):
+            w.write(0.01 * k, "ff", None, {"left": {"setpoint": 1.0}, "right": {"setpoint": 2.0}},
+                    fc_t=None if k < 2 else 200.0 + 0.02 * (k // 2))
+    cl = read_cycle_log(path)
+    assert np.isnan(cl.fc_t[:2]).all() and cl.fc_t[2] == pytest.approx(200.02) and cl.fc_t[-1] == pytest.approx(200.1)
+
+
+# ------------------------------------------------------------------------------------------------ join
+
+
+def test_xcorr_finds_a_known_shift_below_the_grid():
+    t = np.arange(0, 30, 0.013)
+    x = np.sin(1.3 * t) + 0.5 * np.sin(0.37 * t + 1) + 0.2 * np.sin(5.1 * t)
+    shift = 0.0437
+    lag, corr = xcorr_lag(t, x, t + shift, x, -1.0, 1.0)
+    assert lag == pytest.approx(shift, abs=0.002) and corr > 0.95
+    lag, _ = xcorr_lag(t, x, t - 0.3, -x, -1.0, 1.0)  # the sign is free: a reversed wing
+    assert lag == pytest.approx(-0.3, abs=0.002)
+
+
+def test_join_by_stamps_places_the_cycle_log_on_the_fcs_clock(synthetic):
+    fc, _, cl = synthetic
+    al = align(cl, fc)
+    assert al.method == "fc_t"
+    # the offset is the true one less the transit and the shortest wait (not separable from the stamps)
+    assert al.offset_s == pytest.approx(rs.OFFSET_S - rs.TRANSIT_S, abs=0.002)
+    assert abs(al.drift) < 1e-6
+    assert al.check_corr > 0.99 and abs(al.residual_s) < 0.002
+    # the FC's logged L_sp (10 Hz, stamped 3 ms after the value) against the cycle log's
+    assert al.telemetry_lag_s == pytest.approx(0.003 + rs.TRANSIT_S, abs=0.006)
+
+
+def test_join_without_stamps_by_cross_correlation(tmp_path, synthetic):
+    fc, cycle, _ = synthetic
+    cl = read_cycle_log(rs.write_cycle_log(tmp_path / "old.csv", cycle, with_fc_t=False))
+    assert cl.fc_t is None
+    al = align(cl, fc)
+    assert al.method == "xcorr" and math.isnan(al.residual_s)
+    assert al.offset_s == pytest.approx(rs.OFFSET_S, abs=0.02)
+
+
+def test_a_drifting_companion_clock_is_followed(tmp_path):
+    fc, cycle = rs.flight(duration=120.0)
+    cycle = dict(cycle)
+    cycle["t"] = cycle["t"] * (1 + 200e-6)  # the bridge's clock runs 200 ppm fast
+    cl = read_cycle_log(rs.write_cycle_log(tmp_path / "drift.csv", cycle))
+    al = align(cl, fc)
+    assert al.drift == pytest.approx(-200e-6, abs=20e-6)
+    assert abs(al.residual_s) < 0.003
+
+
+# ------------------------------------------------------------------------------------------------ analysis
+
+
+def test_phases_of_a_triangle_wave():
+    t = np.arange(0, 8, 0.01)
+    sp = 6 + 4 * (2 * np.abs((t / 4) % 1 - 0.5) - 0.5)  # 4 s triangle: turns at t = 0, 2, 4, 6
+    sp[(t > 5.0) & (t < 5.5)] = sp[np.searchsorted(t, 5.0)]  # a half-second hold while falling (4..6 s)
+    ph = phases(t, sp)
+    name = {k: v for k, v in enumerate(PHASES)}
+    assert name[ph[np.searchsorted(t, 1.0)]] == "unloading"
+    assert name[ph[np.searchsorted(t, 2.2)]] == "after reversal"
+    assert name[ph[np.searchsorted(t, 3.0)]] == "loading"
+    assert name[ph[np.searchsorted(t, 5.25)]] == "holding"
+    # the hold does not make the continued fall a reversal
+    assert name[ph[np.searchsorted(t, 5.6)]] == "unloading"
+
+
+def test_lost_messages_from_the_stamps():
+    stamps = np.arange(0, 10, 0.02)
+    kept = np.delete(stamps, [10, 11, 12, 300])
+    assert _lost(kept) == (kept.size, 4)
+
+
+def test_roll_authority_recovers_the_gain_per_airspeed_band(synthetic):
+    fc, _, cl = synthetic
+    rv, _, _ = review(fc, cl)
+    assert rv.roll_lag_s == pytest.approx(rs.ROLL_LAG_S, abs=0.021)
+    assert len(rv.roll_authority) >= 4 and rv.roll_uses_measured_warp
+    for g in rv.roll_authority:
+        if g.n > 500:  # the bands the flight crossed fully: the generator's gain at the band's mean airspeed
+            sel = (cl.airspeed >= g.lo_ms) & (cl.airspeed < g.hi_ms)
+            assert g.gain == pytest.approx(float(np.mean(rs.gain_at(cl.airspeed[sel]))), rel=0.05), g
+            assert g.r2 > 0.9
+
+
+def test_tracking_error_by_band_and_phase(synthetic):
+    fc, cycle, cl = synthetic
+    rv, _, al = review(fc, cl)
+    left = rv.tracking["left"]
+    f0, f1 = fc.span  # the rows the FC's log spans
+    inside = (al.fc_time(cycle["t"]) >= f0) & (al.fc_time(cycle["t"]) <= f1)
+    assert inside.sum() > cycle["t"].size - 5
+    e = (cycle["left"]["warp"] - cycle["left"]["setpoint"])[inside]
+    assert left["all"][0].rms == pytest.approx(float(np.sqrt(np.mean(e * e))), rel=1e-6)
+    assert sum(s.n for s in left["phase"]) == e.size
+    assert {s.label for s in left["phase"]} == set(PHASES)
+    assert all(s.n >= review_cmd.MIN_BAND_SAMPLES for s in left["airspeed"])
+
+
+def test_fc_log_alone_says_the_rate_is_too_low_for_a_diagnosis(synthetic):
+    fc, _, _ = synthetic
+    rv, flight, al = review(fc, None)
+    assert al is None and flight.source == "FC log named values"
+    assert flight.rate_hz == pytest.approx(10.0, rel=0.01)
+    assert any("too low to tell delay" in w and "WB_TLM_HZ" in w for w in rv.warnings)
+
+
+def test_review_command_writes_html_and_json(tmp_path, synthetic, monkeypatch):
+    fc, cycle, _ = synthetic
+    monkeypatch.setattr(review_cmd, "read_fc_log", lambda path, progress=None: fc)
+    cyc = rs.write_cycle_log(tmp_path / "c.csv", cycle)
+    out = tmp_path / "r.html"
+    args = Namespace(log="synthetic.BIN", cyclelog=str(cyc), output=str(out), channel=None, bands="9,15,21,24",
+                     trim=1500.0, half_range=400.0, quiet=True)
+    assert review_cmd.main(args) == 0
+    page = out.read_text()
+    assert page.count("data:image/png;base64,") == 6 and "Roll authority" in page
+    js = json.loads(out.with_suffix(".json").read_text())
+    assert js["format"] == "warpbridge-review/1"
+    assert [g["band"] for g in js["roll_authority"]] == ["9-15 m/s", "15-21 m/s", "21-24 m/s"]
+    assert js["alignment"]["method"] == "fc_t"
+    with pytest.raises(UserError, match="--bands"):
+        review_cmd.main(Namespace(**{**vars(args), "bands": "x"}))
+
+
+# ------------------------------------------------------------------------------------------------ real flight
+
+
+@pytest.fixture(scope="module")
+def real():
+    fc = read_fc_log(BIN)
+    cl = read_cycle_log(CYCLES)
+    return fc, cl, review(fc, cl)
+
+
+def test_real_flight_joins_by_stamps_and_the_check_agrees(real):
+    fc, cl, (rv, flight, al) = real
+    assert cl.fc_t is not None and al.method == "fc_t"
+    assert al.check_corr > 0.9, al
+    assert abs(al.residual_s) < 0.02, al  # within a cycle of the FC's 50 Hz output
+    assert al.overlap_s > 20
+    # the bridge's setpoint placed on the FC's clock follows the FC's logged output through the mixer
+    a = (flight.aileron - 1500.0) / 400.0
+    expect = np.where(a >= 0, 6 + 6 * np.clip(a, 0, 1), 6 * (1 + np.clip(a, -1, 0)))
+    f0, f1 = fc.span
+    tf = al.fc_time(cl.t)
+    mode = cl.mode[(tf >= f0) & (tf <= f1)]
+    ok = np.isfinite(expect) & np.char.startswith(mode.astype(str), "ff")
+    assert np.median(np.abs(flight.wings["left"].setpoint[ok] - expect[ok])) < 0.3
+
+
+def test_real_flight_tracking_roll_authority_and_link(real):
+    fc, cl, (rv, flight, al) = real
+    assert rv.source == "cycle log" and rv.rate_hz > 50
+    for w in ("left", "right"):
+        s = rv.tracking[w]["all"][0]
+        assert s.n > 1000 and s.rms < 2.0
+    # right stick: the left wing gains lift (left - right > 0) and the aircraft rolls right (p > 0)
+    fitted = [g for g in rv.roll_authority if g.reliable]
+    assert len(fitted) >= 3 and all(g.gain > 0 for g in fitted), rv.roll_authority
+    # authority grows with airspeed
+    assert fitted[-1].gain > 1.2 * fitted[0].gain
+    # the SITL's plane flies FBWA on a roll-rate controller whose feed-forward (autotuned, in the log's
+    # parameters) does most of the work: the FF implied by the fitted authority is close to it
+    for g in fitted:
+        assert g.ff_ardupilot == pytest.approx(fc.params["RLL_RATE_FF"], rel=0.15), g
+    assert rv.link.servo_messages > 500 and rv.link.latency_median_ms < 100
+    assert {"L_sp", "R_sp"} <= set(rv.link.named_received)
+
+
+def test_real_flight_from_the_tlog_alone(tmp_path):
+    fc = read_fc_log(TLOG)
+    rv, flight, _ = review(fc, None)
+    assert flight.rate_hz < 20 and rv.warnings
+    assert rv.link.tlog_loss
