@@ -1,6 +1,6 @@
 """Gain and phase margins of the warp loop for the default gains and the paper's, on the default rig.
 
-    python benchmarks/bench_margins.py [--no-measure] [--delay-ms 1]
+    python benchmarks/bench_margins.py [--no-measure] [--delay-ms 1] [--json OUT]
 
 The loop: the PI in mm of tendon per deg (and per deg s), the SITL rig's servo (first-order lag
 20 ms, 0.25 us steps, 2 us deadband, 0.1 s/60 deg on a 10 mm horn), the bridge's 100 Hz cycle, and
@@ -18,6 +18,9 @@ comparison (bench and re-rigged, 0..12 deg). Two figures per case (``sitl.margin
 
 Baseline: the paper's Kp = 7, Ki = 1, read as degrees of a 10 mm servo horn per degree (1.22,
 0.175 mm/deg) and as mm/deg; and 0.7 / 20, the real-time demo's gains before this change.
+
+``--json OUT`` also writes the slopes and the table, keyed by the sources the run imported (``stored.py``;
+``results_page.py`` reads ``benchmarks/results/margins.json``).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
+from stored import keyed, write_json  # noqa: E402
 
 from warpbridge.sitl.like_for_like import bench_params, rigged  # noqa: E402
 from warpbridge.sitl.margins import linear_margins, measure_loop, plant_slope  # noqa: E402
@@ -51,6 +55,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--no-measure", action="store_true", help="linearised analysis only (seconds, not minutes)")
     ap.add_argument("--delay-ms", type=float, default=1.0, help="sensor read to servo write, ms (default 1)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the slopes and the table to this JSON file")
     args = ap.parse_args()
     rig = Rig()
     t0 = time.perf_counter()
@@ -78,12 +83,19 @@ def main() -> None:
             gm, pm, fc = _fmt(meas.margins, 1.0 / abs(meas.L[-1]))
             rows.append([name, f"{kp:.3g} / {ki:.3g}", "straight line, paper wing's steepest", f"{worst:.2f}",
                          "measured" + (" (ran away)" if meas.diverged else ""), gm, pm, fc])
-    print(table(rows, ["gains", "kp mm/deg / ki mm/(deg s)", "plant", "deg/mm", "how", "gain margin",
-                       "phase margin deg", "crossover Hz"]))
+    header = ["gains", "kp mm/deg / ki mm/(deg s)", "plant", "deg/mm", "how", "gain margin", "phase margin deg",
+              "crossover Hz"]
+    print(table(rows, header))
     print(f"\nlinearised: 100 Hz ticks, servo lag {rig.servo.tau_s * 1e3:g} ms, input delay {args.delay_ms:g} ms, "
           "no deadband or slew limit. measured: lock-step, 100 Hz ticks + 100 Hz servo messages, tones 0.5-97 Hz, "
           "0.03 mm each; a gain margin '> x (no -180)': the phase never reached -180 deg below 97 Hz, where "
           f"1/|L| = x. {time.perf_counter() - t0:.0f} s.")
+    if args.json:
+        write_json(args.json, keyed({"benchmark": "bench_margins", "delay_ms": args.delay_ms,
+                                     "measured": not args.no_measure, "loop_hz": 100.0,
+                                     "servo_tau_ms": rig.servo.tau_s * 1e3, "slopes_deg_per_mm": slopes,
+                                     "header": header, "rows": rows}))
+        print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

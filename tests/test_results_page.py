@@ -79,12 +79,23 @@ def sitl(folder: Path, files_hash: str | None = None) -> None:
     (folder / results_page.SITL).write_text(json.dumps(rec))
 
 
+def margins(folder: Path) -> None:
+    """bench_margins's figures as ``--json`` writes them, its table's cells as it prints them."""
+    files = ["model/boucwen.py"]
+    rec = {"benchmark": "bench_margins", "delay_ms": 1.0, "measured": False, "loop_hz": 100.0, "servo_tau_ms": 20.0,
+           "slopes_deg_per_mm": {"paper wing": 1.9}, "header": ["gains", "gain margin"],
+           "rows": [["default", "2.70 (8.6 dB)"], ["paper-horn", "1.10 (0.8 dB)"]],
+           "sources": {"files": files, "hash": sources_hash(files)}}
+    (folder / results_page.MARGINS).write_text(json.dumps(rec))
+
+
 def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_beside(tmp_path):
     here = results_page.source_hash(results_page.DIAG_SOURCES)
     archive(tmp_path, here)
     archive(tmp_path, "000000000000", miss=True)  # not in git: ordered by name, so it counts as older
     realdata(tmp_path, here)
     sitl(tmp_path)
+    margins(tmp_path)
     inp = results_page.gather(tmp_path)
     assert inp.current and inp.shown.sources == here and inp.before.sources == "000000000000"
     text = results_page.render(inp)
@@ -102,6 +113,8 @@ def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_
     assert "| calm, settled | 1.100 (1.000-1.200) | 0.550 (0.500-0.600) | 0.330 (0.300-0.360) |" in text
     assert "| gusts 12 m/s | 0.200 | 0.200 | 0.200 | 0.200 |  |" in text
     assert "| paper, bench (Lee et al. 2017) | 1.727 | 2.04 |  | 0.285 |  |" in text
+    assert "| gains | gain margin |\n| --- | --- |\n| default | 2.70 (8.6 dB) |\n| paper-horn | 1.10 (0.8 dB) |" in text
+    assert "(paper wing: 1.90 deg/mm)" in text
     assert results_page.render(results_page.gather(tmp_path)) == text  # the same inputs give the same page
 
 
