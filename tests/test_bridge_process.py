@@ -391,6 +391,7 @@ def test_parameters_list_set_refuse_and_persist_across_a_restart(make_rig):
     assert gcs.params["WB_KP"] == pytest.approx(5.0)
 
 
+@pytest.mark.slow
 def test_live_mode_and_gain_changes_over_mavlink_change_what_the_servo_gets(make_rig):
     rig = make_rig(mode="ff+pi", ki=0.0, jitter_us=0)
     rig.aileron = 1700  # left setpoint 5 deg, measured 4: e = 1 deg
@@ -416,6 +417,7 @@ def test_live_mode_and_gain_changes_over_mavlink_change_what_the_servo_gets(make
     assert gcs.latest("WB_mode") == 0.0
 
 
+@pytest.mark.slow
 def test_each_failsafe_triggers_and_recovers(make_rig):
     rig = make_rig(mode="ff+pi")
     rig.sensor = {SENSOR_CH["left"]: noisy(3.0), SENSOR_CH["right"]: noisy(1.5)}

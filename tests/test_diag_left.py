@@ -92,6 +92,7 @@ def fast_excursion_log(seed: int = 5):
     raise AssertionError("no placement left the excursion in a scored block")
 
 
+@pytest.mark.slow
 def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_path):
     t, u, tc, sp = fast_excursion_log()
     speed = np.abs(np.gradient(u, t))

@@ -245,6 +245,7 @@ def test_paired_gain_sees_a_real_gain_and_not_an_identical_model():
     assert paired_gain(e1, e1, ids).p_value == 1.0
 
 
+@pytest.mark.slow
 def test_noise_only_gives_an_empty_verdict():
     t, u, w, v = make_log(Effects(), seed=7)
     d = diagnose(t, u, w, v, nominal_model())
@@ -256,6 +257,7 @@ def test_noise_only_gives_an_empty_verdict():
     assert d.model.effects.active() == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["backlash", "sensor_lag"])
 def test_a_single_effect_is_named_and_its_gap_closed(name):
     eff, _ = TRUE[name]
@@ -307,6 +309,7 @@ def test_a_shorter_delay_beside_a_narrower_band_is_the_frictions_viscous_part(fi
     assert viscous_lag(("friction", "delay"), field, Effects()) is None  # the bench had no lag to share
 
 
+@pytest.mark.slow
 def test_a_friction_that_took_its_drag_with_it_is_named_alone_and_its_lag_kept():
     # the bench rig lags 40 ms (link, servo and a lubricated sheath's drag); in the field the friction halved
     # and the lag shortened to 28 ms: one change, the sheath's, which the model keeps and names as friction
@@ -415,6 +418,7 @@ def test_the_band_and_the_compliance_are_judged_against_the_models_own_effects(b
     assert (got is not None) == folded
 
 
+@pytest.mark.slow
 def test_a_retensioned_rig_whose_band_followed_is_named_pretension_and_its_friction_kept():
     # a stiffer wing: the rig pulls harder for the same warp, so the tendon stretches more (travel per degree
     # x1.06, the tendon's share of it) and the sheath holds more (band x1.25, the whole tension's factor)
@@ -437,6 +441,7 @@ def write_model(path, effects: Effects | None = None) -> None:
     save_model(path, mf)
 
 
+@pytest.mark.slow
 def test_command_writes_report_augmented_model_and_plot(tmp_path, capsys):
     t, u, w, v = make_log(TRUE["drift"][0], seed=5)
     log = tmp_path / "field.csv"
@@ -462,6 +467,7 @@ def test_command_writes_report_augmented_model_and_plot(tmp_path, capsys):
     assert np.sqrt(np.mean((wp - w) ** 2)) < 1.3 * NOISE
 
 
+@pytest.mark.slow
 def test_command_reads_a_bridge_log(tmp_path):
     t, u, w, v = make_log(Effects(), seed=6, duration=12.0)
     nan = np.full(t.size, np.nan)
@@ -534,6 +540,7 @@ def test_missing_files_and_bad_options_give_one_line_errors(tmp_path, capsys):
     assert rc != 0 and "does not exist" in _one_line_error(capsys)
 
 
+@pytest.mark.slow
 def test_where_puts_a_drift_in_time_and_its_gap_in_the_late_cells():
     t, u, w, v = make_log(TRUE["drift"][0], seed=13)
     d = diagnose(t, u, w, v, nominal_model())
@@ -561,6 +568,7 @@ def _bench_model(bench_effects: Effects, seed: int = 20) -> ModelFile:
 BENCH_LAG = Effects(sensor_tau_s=0.03)  # a misfit of the bench several times the noise, the same in the field
 
 
+@pytest.mark.slow
 def test_a_misfit_the_bench_already_had_is_not_an_effect():
     mf = _bench_model(BENCH_LAG)
     t, u, w, v = make_log(BENCH_LAG, seed=21)
@@ -586,6 +594,7 @@ def _claiming_model(before: float, after: float) -> ModelFile:
                      model_error=em)
 
 
+@pytest.mark.slow
 def test_a_misfit_within_what_the_correction_did_not_carry_is_not_named(monkeypatch):
     mf = _claiming_model(0.25, NOISE)
     t, u, w, v = make_log(BENCH_LAG, seed=21)  # the lag's misfit: about 0.15 deg RMS
@@ -601,6 +610,7 @@ def test_a_misfit_within_what_the_correction_did_not_carry_is_not_named(monkeypa
     assert diagnose(t, u, w, v, mf).verdict == ["sensor_lag"]
 
 
+@pytest.mark.slow
 def test_a_shortfall_a_check_log_already_measured_is_not_counted_twice():
     # identify --check scored the model on another input and found the error the correction does not carry:
     # the known error holds it already, and the transfer check raises the floor only past it
@@ -665,6 +675,7 @@ def test_the_last_round_s_verdict_is_checked_too(monkeypatch):
     assert out["raised_by_ms"] == pytest.approx(0.4) and out["settled"]
 
 
+@pytest.mark.slow
 def test_what_changed_since_the_bench_is_named_over_a_large_bench_misfit():
     mf = _bench_model(BENCH_LAG)
     assert mf.model_error.rms_before_deg > 3 * NOISE
@@ -683,6 +694,7 @@ def _sheath_log(friction: float, seed: int, duration: float = DURATION):
     return t, u, w + NOISE * np.random.default_rng(seed + 1).standard_normal(t.size), v
 
 
+@pytest.mark.slow
 def test_a_friction_change_scales_what_the_bench_knew_of_the_loop_and_is_named_alone():
     t, u, w, _ = _sheath_log(1.0, seed=25, duration=30.0)
     em = bench_error_model(P, Effects(), t, u, w)
@@ -711,6 +723,7 @@ def test_a_log_that_starts_loaded_gives_no_false_alarm():
     assert d.report["initial_state"]["z0"] == pytest.approx(z[k], abs=0.1 * float(np.ptp(z)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [31, 32])
 def test_a_wide_play_on_a_log_that_opens_released_is_named_backlash(seed):
     """A field backlash of a sixth of the travel, the log cut where the tendon had just been released (the
@@ -729,6 +742,7 @@ def test_a_wide_play_on_a_log_that_opens_released_is_named_backlash(seed):
     assert d.report["shrinkage"]["gap_closed"] > 0.95
 
 
+@pytest.mark.slow
 def test_a_parameter_at_its_bound_is_reported_and_lowers_the_confidence():
     # a sensor lag far beyond its search box (up to 0.5 s)
     t, u, w, v = make_log(Effects(sensor_tau_s=0.9), seed=24)
@@ -742,6 +756,7 @@ def test_a_parameter_at_its_bound_is_reported_and_lowers_the_confidence():
     assert any("sensor_tau_s sits at the upper bound" in line for line in d.report["summary"])
 
 
+@pytest.mark.slow
 def test_one_effect_alone_is_not_padded_with_a_second():
     # a sensor zero that warms up (curved, not the ramp the drift effect fits)
     t, u, w, v = make_log(Effects(), seed=25)
@@ -750,6 +765,7 @@ def test_one_effect_alone_is_not_padded_with_a_second():
     assert d.verdict == ["drift"]
 
 
+@pytest.mark.slow
 def test_a_delay_and_a_sensor_lag_together_are_both_named():
     """A transport delay and two equal sensor lags: each alone explains nearly all of the log (both are
     latency), so once one is chosen it carries both and the other, screened with it held, adds nothing.
@@ -833,6 +849,7 @@ def test_a_nominal_that_leaves_its_monotone_range_still_gets_candidates_judged_a
 GROWING_STALL = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=-5.0)
 
 
+@pytest.mark.slow
 def test_a_stall_that_does_not_grow_with_the_tension_is_not_kept_as_friction():
     """A capstan stall whose slack travel lies far below the log's travel is a dead band of fixed width: the fit
     does not keep friction's capstan form for it, and the diagnosis names backlash; a stall that grows across
@@ -848,6 +865,7 @@ def test_a_stall_that_does_not_grow_with_the_tension_is_not_kept_as_friction():
     assert d.verdict == ["backlash"], d.verdict
 
 
+@pytest.mark.slow
 def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlash():
     """A small capstan stall that grows little over the log's travel is a dead band to the held-out test: the
     fixed play (its limit, one parameter) is named, friction reported as equally good and the reason given in a
@@ -928,6 +946,7 @@ def test_a_strained_round_winner_gives_way_to_an_equal_explanation_that_is_not(b
                                            "pretension is named, the two reported as equally good")
 
 
+@pytest.mark.slow
 def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
     """A sensor lag of 10 ms is a delay to the held-out test at these rates: with parsimony the one-parameter
     delay is named and the lag reported as equally good; a 40 ms lag, which the test tells from a delay, is
@@ -943,6 +962,7 @@ def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
             assert equal == ([{"sensor_lag", "delay"}] if tau < 0.02 else []), equal
 
 
+@pytest.mark.slow
 def test_an_effect_that_closes_little_of_the_nominals_gap_is_not_named_under_min_total():
     """A slight sensor lag beside a drift a hundred times its size: significant on its own, so named by default,
     but it closes under 3 % of the gap the nominal leaves, so not with ``min_total = 0.03``; a lag of the drift's
@@ -964,6 +984,7 @@ def test_min_total_round_trips_and_is_left_out_at_zero():
     assert Decision.from_dict(d.to_dict()) == d and d.to_dict()["min_total"] == 0.03
 
 
+@pytest.mark.slow
 def test_a_friction_all_but_gone_is_sized_inside_the_search():
     """A loop shrunk to 6 % of its width: named friction alone, its scale recovered, not at a bound (the old
     search stopped at 0.2 and reported the bound)."""
@@ -974,6 +995,7 @@ def test_a_friction_all_but_gone_is_sized_inside_the_search():
     assert not d.report["bound_hits"]
 
 
+@pytest.mark.slow
 def test_two_effects_that_hide_each_other_enter_together():
     """A warming drift and an aerodynamic load of similar size: at a level stricter than either's evidence
     alone, neither passes (each leaves the other's slow, structured error, which weakens its evidence), but
@@ -994,6 +1016,7 @@ def test_two_effects_that_hide_each_other_enter_together():
     assert d.report["shrinkage"]["gap_closed"] > 0.95
 
 
+@pytest.mark.slow
 def test_nothing_enters_together_on_a_log_without_effects():
     from warpbridge.model.diagnose import Decision
 
@@ -1003,6 +1026,7 @@ def test_nothing_enters_together_on_a_log_without_effects():
             assert diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(alpha=alpha))).verdict == []
 
 
+@pytest.mark.slow
 def test_a_load_beside_a_drift_bent_to_follow_it_is_found_from_the_drifts_round():
     """A large warming drift and a smaller aero load: the drift explains most alone, bent to follow part of
     the load. Round 2 refits the pair also from the load's own fit (the drift searched again), so the pair is
@@ -1075,6 +1099,7 @@ def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the
     assert grows_with_load(loss) and not grows_with_load(dict(loss, gain_fast_ms=-1e-5))
 
 
+@pytest.mark.slow
 def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loads(monkeypatch):
     import warpbridge.model.diagnose as diag
 
@@ -1105,6 +1130,7 @@ def _report_without_counts(d) -> str:
     return json.dumps(rep, sort_keys=True, default=str)
 
 
+@pytest.mark.slow
 def test_fitting_on_threads_gives_the_report_one_thread_gives():
     """Two worker processes fit each round's candidates (and each form of friction) side by side and prefetch
     the backward check: the verdict, every candidate's figures, the sensitivity's alternatives and the augmented
@@ -1119,6 +1145,7 @@ def test_fitting_on_threads_gives_the_report_one_thread_gives():
     assert runs[1].report["model_evaluations"] > 0
 
 
+@pytest.mark.slow
 def test_the_command_fits_on_the_threads_asked_for_and_refuses_a_negative_count(tmp_path, capsys):
     t, u, w, v = make_log(TRUE["backlash"][0], seed=35, duration=8.0)
     write_csv_atomic(tmp_path / "log.csv", {"t": t, "u": u, "warp": w, "airspeed": v})
@@ -1178,6 +1205,7 @@ def test_an_opening_driven_beyond_the_model_costs_inf_and_an_ordinary_one_its_sq
     assert prob._opening_cost(P, beyond) == math.inf
 
 
+@pytest.mark.slow
 def test_a_backlash_wider_than_the_first_search_is_searched_again():
     """A dead band of 0.55 of the travel, past the first search's 0.4: the fit ends at that edge, searches again up
     to the whole travel, keeps the wider fit (sized within 5 %, at no edge) and the report says so; a backlash of

@@ -61,6 +61,7 @@ def heavy_models(heavy):
     return outs
 
 
+@pytest.mark.slow
 def test_identify_scores_the_check_log_and_warns_when_the_model_does_not_carry(heavy, heavy_models):
     m = json.loads((heavy / "checked.json").read_text())
     chk = m["fit"]["check"]
@@ -75,6 +76,7 @@ def test_identify_scores_the_check_log_and_warns_when_the_model_does_not_carry(h
     assert plain["params"] == m["params"]  # the check scores the model, it does not change the fit
 
 
+@pytest.mark.slow
 def test_diagnose_takes_the_check_logs_error_as_the_known_error_when_larger(heavy, heavy_models, capsys):
     reports = {}
     for tag in ("checked", "plain"):
@@ -93,6 +95,7 @@ def test_diagnose_takes_the_check_logs_error_as_the_known_error_when_larger(heav
     assert reports["checked"]["floor_deg"] > reports["plain"]["floor_deg"]
 
 
+@pytest.mark.slow
 def test_a_check_log_the_model_carries_to_gives_no_warning_and_keeps_the_bench_error(tmp_path, capsys):
     # the paper's own Bouc-Wen plant: identified on a random input, it predicts a multisine as well
     assert run("simulate", "-o", tmp_path / "bench.csv", "--duration", 30, "--rate", RATE, "--seed", 1) == 0

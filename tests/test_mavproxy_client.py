@@ -69,6 +69,7 @@ class MavProxy:
         self._out.close()
 
 
+@pytest.mark.slow
 def test_mavproxy_lists_sets_and_sees_the_bridge(tmp_path):
     rig = Rig(tmp_path)
     mp = None
@@ -111,6 +112,7 @@ def test_mavproxy_lists_sets_and_sees_the_bridge(tmp_path):
     assert "Traceback" not in rig.stderr()
 
 
+@pytest.mark.slow
 def test_mavproxy_parameter_fetch_over_ftp_beats_the_plain_list(tmp_path):
     """MAVProxy fetches over MAVLink FTP first; answered at once, that takes two round trips, faster
     than the plain PARAM_REQUEST_LIST (paced for a radio), where an unanswered FTP would cost its ten

@@ -144,6 +144,7 @@ def test_noise_alone_teaches_it_nothing():
     assert em.rms_after_deg == pytest.approx(noise, rel=0.05)
 
 
+@pytest.mark.slow
 def test_a_bench_lag_the_model_lacks_is_learned_as_structure():
     t, u, _ = _log(seconds=40.0, fs=500.0, seed=4)
     _, w = Plant(P, Effects(sensor_tau_s=0.02)).simulate(t, u)
@@ -291,6 +292,7 @@ def test_the_plant_runs_the_correction_with_its_friction_band():
         assert eff.band_scale == band
 
 
+@pytest.mark.slow
 def test_friction_spread_along_a_sheath_is_learned_by_the_play_set():
     # the wing's hysteresis carries, on top of the model's, a Prandtl-Ishlinskii part (plays of widths that
     # are not on the module's grid): memory one Bouc-Wen state cannot hold
@@ -320,6 +322,7 @@ def test_a_short_bench_log_still_gets_the_sets_its_samples_support():
     assert em.rms_after_deg < 0.5 * em.rms_before_deg
 
 
+@pytest.mark.slow
 def test_bench_dynamics_of_tens_of_ms_are_learned_by_the_lag_set():
     # the bench's servo and sensor: two stages of 25 and 12 ms on a fast input; the rate set is only the
     # first-order term of that, the lag set holds more of it

@@ -297,6 +297,7 @@ KILLER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_kill_at_every_statement_of_a_write_leaves_old_or_new(tmp_path):
     """SIGKILL at each line executed in bridge.params during a set + save, one run per line."""
     path = tmp_path / "params.json"

@@ -63,6 +63,7 @@ def test_a_nonlinear_size_moves_from_the_training_fits_end_to_the_whole_logs_bes
         assert whole_mse(whole.effects.delay_s) <= whole_mse(float(d)) + 1e-12
 
 
+@pytest.mark.slow
 def test_the_report_and_the_model_carry_the_whole_log_sizes_and_the_held_out_figures_stay_the_trainings():
     t, u, w, v = make_log(Effects(backlash_mm=0.15), seed=11)
     model = ModelFile(params=P, fit=FitQuality(train_rms_deg=NOISE, heldout_rms_deg=NOISE, noise_deg=NOISE))

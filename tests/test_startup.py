@@ -209,6 +209,7 @@ def test_numba_cache_last_resort_is_the_temporary_directory(tmp_path):
     assert got is not None and env["NUMBA_CACHE_DIR"] == str(got) and "warpbridge-" in got.name
 
 
+@pytest.mark.slow
 def test_numba_really_compiles_into_the_chosen_directory(tmp_path):
     cache = tmp_path / "cache"
     code = ("import numpy as np\n"
