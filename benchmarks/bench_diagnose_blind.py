@@ -87,8 +87,9 @@ from warpbridge.bridge.commands.diagnose import free_cores  # noqa: E402
 from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic  # noqa: E402
 from warpbridge.model import excitation  # noqa: E402
 
-IDENT_SOURCES = ["model/identify.py", "model/kernels.py", "model/boucwen.py", "model/initial_state.py",
-                 "bridge/commands/logfile.py"]
+IDENT_SOURCES = ["model/identify.py", "model/ident_design.py", "model/ident_path.py", "model/ident_space.py",
+                 "model/ident_uncertainty.py", "model/signals.py", "model/kernels.py", "model/boucwen.py",
+                 "model/initial_state.py", "bridge/commands/logfile.py"]
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
                                 "sitl/sheath.py", "model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
                                 "model/diag_where.py", "model/diagnose.py", "model/diag_pool.py",

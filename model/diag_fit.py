@@ -74,7 +74,6 @@ from warpbridge.model.effects import (
     form_parameters,
     sensor_filtered,
 )
-from warpbridge.model.identify import central_range, noise_floor, reversal_indices, warmup_end
 from warpbridge.model.initial_state import (
     OPENING_MAX,
     algebraic_z0,
@@ -83,6 +82,7 @@ from warpbridge.model.initial_state import (
     squared_error,
 )
 from warpbridge.model.model_error import ErrorModel
+from warpbridge.model.signals import central_range, noise_floor, reversal_indices, warmup_end
 
 log = logging.getLogger(__name__)
 

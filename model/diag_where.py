@@ -22,7 +22,7 @@ import numpy as np
 
 from warpbridge.model.diag_stats import band_table, change_point, effective_n, xcorr_lag
 from warpbridge.model.effects import dynamic_pressure_kpa
-from warpbridge.model.identify import central_range
+from warpbridge.model.signals import central_range
 
 PHASES = ("loading", "unloading", "after reversal to loading", "after reversal to unloading")
 REVERSAL_WINDOW = 0.1  # of the input span: travel after a reversal that counts as "just after"

@@ -90,12 +90,12 @@ from warpbridge.model.effects import (
     Effects,
     slack_side_name,
 )
-from warpbridge.model.identify import noise_floor
 from warpbridge.model.initial_state import estimate_plant_start, reachable_band
 from warpbridge.model.input_check import known_error_on_check
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
+from warpbridge.model.signals import noise_floor
 
 log = logging.getLogger(__name__)
 

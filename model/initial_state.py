@@ -27,6 +27,7 @@ import numpy as np
 from warpbridge.model._jit import njit
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.effects import PULLED, RELEASED, apply_input_effects
+from warpbridge.model.signals import noise_floor
 
 GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
 OPENING_MAX = 2000  # samples over which z0 is refined (the state's influence fades after a few reversals)
@@ -230,8 +231,6 @@ def estimate_plant_start(plant, t, u, w, airspeed=None, *, opening: int | None =
     Until the input first crosses the play the two predict warps a whole play apart, so each side gets its z0
     (``estimate_plant_z0``) and the release is kept when it explains the opening stretch materially better
     (``released_start_wins``)."""
-    from warpbridge.model.identify import noise_floor  # identify imports this module
-
     z_pull = estimate_plant_z0(replace(plant, slack_side=PULLED), t, u, w, airspeed, opening=opening)
     if not plant.effects.has_slack:
         return z_pull, PULLED

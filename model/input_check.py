@@ -18,10 +18,10 @@ import math
 
 import numpy as np
 
-from warpbridge.model.identify import noise_floor
 from warpbridge.model.initial_state import estimate_plant_start
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.plant import Plant
+from warpbridge.model.signals import noise_floor
 
 SKIP_S = 1.0  # the first second is left out: the initial state is estimated from it
 MIN_SAMPLES = 200

@@ -31,7 +31,8 @@ from warpbridge.model import excitation as X
 from warpbridge.model.adapt import fold_pretension
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.effects import lagged
-from warpbridge.model.identify import noise_floor
+from warpbridge.model.identify import identify
+from warpbridge.model.signals import noise_floor
 from warpbridge.model.transform import Transform
 
 SWEEP_S = 4.0  # the opening sweep: up to the top of the range, down to the bottom
@@ -204,8 +205,6 @@ def refit_full(base: BoucWenParams, t, u, w, *, lag_s: float = 0.02, heldout_fra
                rule: AcceptRule = AcceptRule(), old: BoucWenParams | None = None, seed: int = 0,
                progress=None, maxiter: int = 60) -> RefitResult:
     """Re-identify the whole Bouc-Wen model on the calibration (DE + Nelder-Mead), judged like ``refit``."""
-    from warpbridge.model.identify import identify
-
     t, u, w = _check(t, u, w)
     train, held = _split(t, heldout_frac)
     old = old if old is not None else base

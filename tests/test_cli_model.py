@@ -33,6 +33,19 @@ def test_identify_writes_a_versioned_model_with_its_fit_quality(workdir):
     assert (workdir / "id.png").stat().st_size > 10_000
 
 
+def test_identify_writes_an_interval_for_every_parameter_and_what_the_log_excites(workdir):
+    fit = json.loads((workdir / "model.json").read_text())["fit"]
+    unc = fit["uncertainty"]
+    assert unc["level"] == 0.95 and 1 <= unc["effective_samples"] <= unc["samples"]
+    assert set(unc["params"]) == {"a1", "a2", "a3", "az", "A", "n", "b1", "b2", "b3", "b4", "b5", "b6"}
+    for iv in unc["params"].values():
+        assert iv["lo"] <= iv["value"] <= iv["hi"] and isinstance(iv["determined"], bool)
+    assert set(unc["undetermined"]) <= set(unc["params"]) | set(unc["search"])
+    assert fit["excitation"]["turning_points"] >= 4 and isinstance(fit["excitation"]["notes"], list)
+    assert fit["train_rms_deg"] <= fit["linear_train_rms_deg"] and fit["line_restart"] is False
+    assert fit["design_seed"] == 0 and fit["design_size"] >= 512
+
+
 def test_predict_writes_t_and_warp_pred_matching_the_log(workdir):
     assert run("predict", workdir / "check.csv", "--model", workdir / "model.json", "-o", workdir / "pred.csv") == 0
     lines = (workdir / "pred.csv").read_text().splitlines()
@@ -254,10 +267,11 @@ def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(wor
     capsys.readouterr()
     assert run("identify", workdir / "bench.csv", "-o", tmp_path / "once.json", "--maxiter", 10) == 0
     assert "searched again" not in capsys.readouterr().out
-    monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every search counts as ending at the limit
+    monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every refinement counts as ending at the limit
+    monkeypatch.setattr(ident, "EDGE_AGREE", -1.0)  # and its starts as disagreeing there
     assert run("identify", workdir / "bench.csv", "-o", tmp_path / "twice.json", "--maxiter", 10) == 0
     out = capsys.readouterr().out
-    assert "the first search ended at the upper limit of the exponent n: searched again" in out
+    assert "the first refinement ended at the upper limit of the exponent n: searched again" in out
     assert ("was kept" in out) != ("the first still fitted" in out)
 
 

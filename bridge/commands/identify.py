@@ -1,14 +1,17 @@
 """``warpbridge identify LOG.csv -o MODEL.json``: the nominal Bouc-Wen model from a log.
 
-Differential evolution then Nelder-Mead on the forward output error, the last
-part of the log held out, the initial hysteretic state estimated from the first
-samples, and with ``--max-delay`` a transport delay in front of the model (the
-rig's servo, link and sensor lag, written to the model's effects as
-``delay_s``); prints training and held-out RMS, the noise floor, a
-straight-line baseline fitted on the same training samples and whether the
-model beats it (if not, one line saying why the data do not support the model);
-``--plot`` draws measured vs model loops and time series. Every output path is
-checked before the fit starts.
+The steps of ``model.identify``: a deterministic start design whose backbone and
+state coefficients are solved exactly per trial shape, then Levenberg-Marquardt
+on the forward output error, the last part of the log held out, the initial
+hysteretic state estimated from the first samples, and with ``--max-delay`` a
+transport delay in front of the model (the rig's servo, link and sensor lag,
+written to the model's effects as ``delay_s``); then the model-error model for
+``diagnose`` and a 95 % interval for every parameter. Prints training and
+held-out RMS, the noise floor, a straight-line baseline fitted on the same
+training samples and whether the model beats it (if not, one line saying why the
+data do not support the model), what the log does not excite, and the
+parameters the data do not determine; ``--plot`` draws measured vs model loops
+and time series. Every output path is checked before the fit starts.
 """
 
 from __future__ import annotations
@@ -21,14 +24,19 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from warpbridge.bridge.commands.logfile import read_log
+from warpbridge.bridge.commands.modelio import save_model
+from warpbridge.bridge.commands.plots import plot_identification
 from warpbridge.bridge.errors import UserError
+from warpbridge.model import identify as ident
+from warpbridge.model.diagnose import bench_known_error
 from warpbridge.model.effects import Effects
-from warpbridge.model.identify import DELAY_GRID_S, identify
+from warpbridge.model.identify import DELAY_GRID_S
 from warpbridge.model.input_check import input_check
 from warpbridge.model.model_error import ErrorModel, bench_error_model
-from warpbridge.model.modelfile import ModelFile
+from warpbridge.model.modelfile import FitQuality, ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 MAX_DELAY_S = DELAY_GRID_S[-1]  # the longest delay the scan tries: the search a model to diagnose with needs
@@ -40,8 +48,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wing", choices=("left", "right"), help="read this wing's columns of a bridge log")
     p.add_argument("--plot", help="PNG of measured vs model loops, time series and residual")
     p.add_argument("--heldout", type=float, default=0.25, help="fraction of the log held out (default 0.25)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the search (default 0)")
-    p.add_argument("--maxiter", type=int, default=150, help="most generations of the global search (default 150)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="scramble of the start design (default 0, the fixed default design); the answer does not "
+                        "depend on it beyond the refinement's tolerance: another seed is a check, not a second chance")
+    p.add_argument("--maxiter", type=int, default=150,
+                   help="most Levenberg-Marquardt steps of each refinement (default 150; at most 40 are taken on "
+                        "the search's part of the log)")
     p.add_argument("--max-delay", type=float, default=0.0,
                    help="search a transport delay up to this long (s) in front of the model: the servo, link and "
                         f"sensor lag of the rig; {MAX_DELAY_S:g} for a model to diagnose with (default 0: "
@@ -83,11 +95,11 @@ class Progress:
     def __call__(self, stage: str, i: int, n: int) -> None:
         if not self.enabled:
             return
-        from tqdm import tqdm
-
-        label = {"search": "global search (DE)", "search again": "global search again, from the next seed (DE)",
-                 "search without a fold": "global search again, the backbone kept from folding (DE)",
-                 "polish": "polish (Nelder-Mead)", "delay": "transport delay scan"}.get(stage, stage)
+        label = {"design": "start design (linear solve per trial shape)", "refine": "refinement (Levenberg-Marquardt)",
+                 "refine again": "refinement again, from the next starts",
+                 "refine without a fold": "refinement again, the backbone kept from folding",
+                 "line": "refinement again, from the straight line", "polish": "refinement on more of the log",
+                 "delay": "transport delay scan"}.get(stage, stage)
         if not sys.stderr.isatty():  # a log file gets a line per quarter, not a redrawn bar
             q = 4 * i // max(n, 1)
             if stage != self.stage or q != getattr(self, "_q", -1):
@@ -108,9 +120,6 @@ class Progress:
 
 
 def main(args: argparse.Namespace) -> int:
-    from warpbridge.bridge.commands.modelio import save_model
-    from warpbridge.model.modelfile import FitQuality
-
     check_outputs({"-o": args.output, "--plot": args.plot}, plots=("--plot",))
     if not 0.05 <= args.heldout <= 0.5:
         raise UserError("--heldout must lie between 0.05 and 0.5")
@@ -127,8 +136,8 @@ def main(args: argparse.Namespace) -> int:
     progress = Progress(enabled=not args.quiet)
     t0 = time.perf_counter()
     try:
-        res = identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed, maxiter=args.maxiter,
-                       max_delay_s=args.max_delay, progress=progress)
+        res = ident.identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed,
+                             maxiter=args.maxiter, max_delay_s=args.max_delay, progress=progress)
     except ValueError as e:
         raise UserError(f"{args.log}: {e}") from None
     finally:
@@ -151,8 +160,6 @@ def main(args: argparse.Namespace) -> int:
             raise UserError(f"--check {args.check}: {e}") from None
     save_model(args.output, mf)
     if args.plot:
-        from warpbridge.bridge.commands.plots import plot_identification
-
         plot_identification(args.plot, data.t, data.u, data.warp, res.w_pred, res.heldout_mask,
                             title=f"{Path(args.log).name}: identified generalized Bouc-Wen model")
     ratio = res.heldout_rms / res.noise if res.noise > 0 else float("nan")
@@ -170,9 +177,12 @@ def main(args: argparse.Namespace) -> int:
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
     if res.trace.restarts:
-        print("  the first search ended at the upper limit of the exponent n: searched again from another seed, "
-              + ("the second fitted the training part better and was kept" if res.trace.restart_kept
-                 else "the first still fitted the training part better"))
+        print("  the first refinement ended at the upper limit of the exponent n: searched again from the next "
+              "starts, " + ("the second fitted the training part better and was kept" if res.trace.restart_kept
+                            else "the first still fitted the training part better"))
+    if res.trace.line_restart:
+        print(f"  the first result fitted the training part worse than the best straight line "
+              f"({res.linear_train_rms:.4f} deg): refined again from the line and the quadratic backbone")
     if res.trace.fold_deg is not None:
         lo, hi = res.trace.working_range_deg
         first, unfolded = res.trace.fold_train_rms
@@ -188,6 +198,8 @@ def main(args: argparse.Namespace) -> int:
               f"fold kept outside it, {outcome}")
     if res.support is not None and not res.support.supported:
         print(f"warning: {res.support.reason}")
+    for line in excitation_lines(res):
+        print(line)
     print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
     if mf.model_error is not None:
         em = mf.model_error
@@ -207,8 +219,6 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
     """The model's error on a check log of another input (``model.input_check``): the record MODEL.json keeps
     under ``fit.check`` and the lines ``identify`` prints (a warning when it is over ``CARRY_FACTOR`` x the
     bench's and over the check log's noise)."""
-    from warpbridge.model.diagnose import bench_known_error
-
     rec = {"log": name} | input_check(mf.params, mf.effects, mf.model_error, check.t, check.u, check.warp,
                                       check.airspeed)
     corrected = mf.model_error is not None
@@ -236,3 +246,21 @@ def bench_model_error(mf: ModelFile, data) -> ErrorModel | None:
     except (ValueError, np.linalg.LinAlgError) as e:
         print(f"note: no model-error model: {e}", file=sys.stderr)
         return None
+
+
+def excitation_lines(res) -> list[str]:
+    """What the log does not excite and which parameters it leaves undetermined (95 % intervals wider than the
+    value, or than a tenth of the search box), one line each."""
+    lines = []
+    if res.excitation is not None:
+        lines += [f"note: excitation: {n}" for n in res.excitation.notes]
+    unc = res.uncertainty
+    if unc is not None and unc.undetermined:
+        shown = []
+        for name in unc.undetermined:
+            iv = unc.params.get(name) or unc.search.get(name)
+            shown.append(f"{name} = {iv.value:.4g} [{iv.lo:.4g}, {iv.hi:.4g}]" if iv is not None else name)
+        lines.append("note: the data do not determine " + "; ".join(shown) + f" (95 % intervals, "
+                     f"{unc.effective_samples:.0f} effective samples of {unc.samples}): the log does not pin "
+                     "them down; a richer input (reversals at several levels, the whole travel) would")
+    return lines

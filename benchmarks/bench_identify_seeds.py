@@ -1,0 +1,309 @@
+"""Benchmark: does identification's answer depend on its seed? Held-out RMS over seeds, old code beside new.
+
+Three sets of logs, each identified with ``--seed`` 0..N-1 by the current code and by a
+previous revision (``--baseline REV``, extracted from git into a temporary package by
+``bench_identify.load_baseline`` and run interleaved with the current code, so both see
+the same load), each with the defaults a user gets (no prior, no delay):
+
+- ``bench``: the 24 bench logs of ``bench_identify`` (4 Bouc-Wen plants x 6 excitations,
+  60 s at 500 Hz, 0.05 deg of sensor noise), scored on their held-out last quarter;
+- ``sitl``: the bridge's own cycle logs (``bridge-cycles.csv``, both wings) of ``warpbridge sitl``
+  runs, closed loop (ff+PI against the hysteresis, sensor noise, the servo's lag), for the
+  Bouc-Wen wing and ``--plant sheath``, several scenarios and seeds (recorded into ``--sitl-dir``
+  when missing), scored on their held-out last quarter; beside them the open-loop bench log of
+  the same plant (``sitl.wing.bench_log``, 90 s at 200 Hz) identified the same way;
+- ``realdata``: the measured tendon-sheath logs of ``../shared/realdata/tsm-kaist`` (read, never
+  copied), scored on their held-out last quarter and on the other logs of their series (the
+  other sine amplitudes of configuration 0; the other bends), predicted whole from their first
+  samples.
+
+Per log: held-out RMS of each seed (min, median, max), the spread (max / min), the default
+run's (seed 0) held-out against the best seed of the old code, the straight line's held-out
+RMS and the noise floor, and the wall time per fit (median). Writes every figure as JSON
+(``--json``, default ``benchmarks/results/identify-seeds.json``) after each log, so a run cut
+short keeps what it measured.
+Run: python benchmarks/bench_identify_seeds.py --baseline REV [--seeds 10] [--old-seeds-bench 10]
+     [--sets sitl,bench,realdata] [--sitl-dir DIR] [--realdata DIR] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_identify as BI  # noqa: E402
+from _common import table  # noqa: E402
+from bench_realdata_identify import default_dir as realdata_dir  # noqa: E402
+from bench_realdata_identify import load as load_realdata  # noqa: E402
+
+from warpbridge.bridge.commands.logfile import read_log  # noqa: E402
+from warpbridge.model import identify as current  # noqa: E402
+from warpbridge.model.boucwen import BoucWenParams, forward  # noqa: E402
+from warpbridge.model.initial_state import estimate_z0  # noqa: E402
+from warpbridge.model.signals import linear_fit, noise_floor  # noqa: E402
+from warpbridge.sitl.like_for_like import bench_params, rigged, sheath_spec  # noqa: E402
+from warpbridge.sitl.sheath import SheathPlant  # noqa: E402
+from warpbridge.sitl.wing import WingSpec, bench_log  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+SITL_PLANTS = ("bouc-wen", "sheath")
+SITL_SCENARIOS = ("random", "steps", "sweep")
+SITL_SEEDS = (0, 1)
+BENDS = (0, 60, 120, 180, 240)
+AMPLITUDES = (50, 60, 70)
+
+
+def rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+def other_rms(params: BoucWenParams, others: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Mean over the other logs of the RMS of the model run on each whole, z0 from its first samples."""
+    out = []
+    for u, w in others:
+        z0 = estimate_z0(params, u, w)
+        out.append(rms(forward(params, u, z0=z0)[0] - w))
+    return float(np.mean(out)) if out else math.nan
+
+
+def fit_once(ident, t, u, w, seed: int, others) -> dict:
+    t0 = time.perf_counter()
+    r = ident.identify(t, u, w, seed=seed)
+    wall = time.perf_counter() - t0
+    return {"seed": seed, "heldout_rms_deg": r.heldout_rms, "train_rms_deg": r.train_rms, "seconds": wall,
+            "other_rms_deg": other_rms(r.params, others) if others else None, "params": r.params.to_dict()}
+
+
+def line_other(t, u, w, others) -> tuple[float, float | None]:
+    """Held-out RMS of the straight line on the log's last quarter and, mean, on the other logs."""
+    split = t[0] + 0.75 * (t[-1] - t[0])
+    train = t < split
+    c0, c1 = linear_fit(u, w, train)
+    held = rms(c0 + c1 * u[~train] - w[~train])
+    oth = float(np.mean([rms(c0 + c1 * uo - wo) for uo, wo in others])) if others else None
+    return held, oth
+
+
+def summary(runs: list[dict], key: str = "heldout_rms_deg") -> dict:
+    v = [r[key] for r in runs if r[key] is not None and math.isfinite(r[key])]
+    if not v:
+        return {"min": None, "median": None, "max": None, "spread": None}
+    return {"min": min(v), "median": statistics.median(v), "max": max(v), "spread": max(v) / min(v)}
+
+
+# ---- the logs ------------------------------------------------------------------------------------
+
+def bench_logs() -> list[dict]:
+    out = []
+    for pi, name in enumerate(BI.PLANTS):
+        for fi, fam in enumerate(BI.FAMILIES):
+            t, u, w, _ = BI.bench_log(BI.PLANTS[name], fam, 10 * pi + fi)
+            out.append({"set": "bench", "log": f"{name}/{fam}", "plant": name, "t": t, "u": u, "w": w, "others": []})
+    return out
+
+
+def record_sitl(d: Path) -> None:
+    """``warpbridge sitl`` runs into d (each skipped when its cycle log is there)."""
+    d.mkdir(parents=True, exist_ok=True)
+    for plant in SITL_PLANTS:
+        for sc in SITL_SCENARIOS:
+            for seed in SITL_SEEDS:
+                run = d / f"{plant}-{sc}-s{seed}"
+                if (run / "bridge-cycles.csv").exists():
+                    continue
+                cmd = [sys.executable, "-m", "warpbridge.bridge.cli", "sitl", "--plant", plant, "--scenario", sc,
+                       "--seed", str(seed), "--out", str(run), "--no-plot", "--no-gcs"]
+                subprocess.run(cmd, check=True, capture_output=True, text=True)
+
+
+def sitl_bench_log(plant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The open-loop bench log (90 s, 200 Hz, low-passed random tendon) of the plant the SITL flies."""
+    if plant == "sheath":
+        params = rigged(bench_params())
+        lo, hi = SheathPlant(params).travel_range(12.0)
+        cols = bench_log(sheath_spec(params), lo, hi, seed=0)
+    else:
+        p = BoucWenParams.paper()
+        lo, hi = p.a3, p.a1 * 144.0 + p.a2 * 12.0 + p.a3
+        cols = bench_log(WingSpec(), lo, hi, seed=0)
+    return cols["t"], cols["u"], cols["warp"]
+
+
+def sitl_logs(d: Path) -> list[dict]:
+    out = []
+    for plant in SITL_PLANTS:
+        t, u, w = sitl_bench_log(plant)
+        out.append({"set": "sitl", "log": f"{plant} open-loop bench", "plant": plant, "t": t, "u": u, "w": w,
+                    "others": [], "bench": True})
+        for sc in SITL_SCENARIOS:
+            for seed in SITL_SEEDS:
+                for wing in ("left", "right"):
+                    data = read_log(d / f"{plant}-{sc}-s{seed}" / "bridge-cycles.csv", wing=wing)
+                    out.append({"set": "sitl", "log": f"{plant} {sc} s{seed} {wing}", "plant": plant, "t": data.t,
+                                "u": data.u, "w": data.warp, "others": [], "bench": False})
+    return out
+
+
+def realdata_logs(d: Path) -> list[dict]:
+    series = {"bend": {f"{n}.txt": load_realdata(d / f"{n}.txt", 1, 3) for n in BENDS},
+              "conf0": {f"conf0_{a}.txt": load_realdata(d / f"conf0_{a}.txt", 1, 5, decimate=4) for a in AMPLITUDES}}
+    out = []
+    for name, logs in series.items():
+        for fname, rows in logs.items():
+            others = [(r[:, 1], r[:, 2]) for f, r in logs.items() if f != fname]
+            out.append({"set": "realdata", "log": fname, "plant": name, "t": rows[:, 0], "u": rows[:, 1],
+                        "w": rows[:, 2], "others": others})
+    return out
+
+
+# ---- the run -------------------------------------------------------------------------------------
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--baseline", help="git revision whose identification runs beside the current one")
+    ap.add_argument("--seeds", type=int, default=10, help="seeds of the current code per log (default 10)")
+    ap.add_argument("--seeds-bench", type=int, help="seeds of the current code per bench log (default --seeds)")
+    ap.add_argument("--old-seeds-bench", type=int, default=10, help="seeds of the old code per bench log")
+    ap.add_argument("--old-seeds-sitl", type=int, default=10, help="seeds of the old code per SITL log")
+    ap.add_argument("--old-seeds-realdata", type=int, default=10, help="seeds of the old code per measured log")
+    ap.add_argument("--sets", default="sitl,bench,realdata")
+    ap.add_argument("--sitl-dir", help="folder of the SITL runs (recorded there when missing; default a temporary one)")
+    ap.add_argument("--realdata", help="folder of the measured logs (default ../shared/realdata/tsm-kaist)")
+    ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "identify-seeds.json"))
+    ap.add_argument("--versions", default="new,old", help="which code to run: new, old or both (default)")
+    ap.add_argument("--merge", help="a JSON of this benchmark whose runs fill in the versions not run here "
+                                    "(the old code's figures measured in an earlier run of the same logs)")
+    args = ap.parse_args()
+
+    versions = {}
+    if "new" in args.versions.split(","):
+        versions["new"] = current
+    if args.baseline and "old" in args.versions.split(","):
+        versions["old"] = BI.load_baseline(args.baseline)
+    merged = {}
+    if args.merge:
+        prev = json.loads(Path(args.merge).read_text())
+        merged = {(r["set"], r["log"]): r for r in prev["logs"]}
+    t = np.arange(2000) / BI.FS  # compile every kernel before timing
+    u = 4.5 + 2 * np.sin(2 * np.pi * t)
+    for v in versions.values():
+        v.identify(t, u, 5 + 2.5 * np.sin(2 * np.pi * t - 0.3), maxiter=2, polish_evals=20)
+    old_seeds = {"bench": args.old_seeds_bench, "sitl": args.old_seeds_sitl, "realdata": args.old_seeds_realdata}
+    head = (f"{os.cpu_count()} CPUs; load average at start {os.getloadavg()[0]:.1f}; current code {args.seeds} seeds, "
+            f"old code ({args.baseline or 'none'}) seeds per set {old_seeds}")
+    print(head, flush=True)
+    out = {"format": "warpbridge-bench-identify-seeds/1", "baseline": args.baseline, "seeds": args.seeds,
+           "old_seeds": old_seeds, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "logs": []}
+    sets = args.sets.split(",")
+    logs: list[dict] = []
+    for s in sets:
+        if s == "sitl":
+            d = Path(args.sitl_dir) if args.sitl_dir else Path(tempfile.mkdtemp(prefix="wb-sitl-"))
+            record_sitl(d)
+            logs += sitl_logs(d)
+        elif s == "bench":
+            logs += bench_logs()
+        elif s == "realdata":
+            d = Path(args.realdata) if args.realdata else realdata_dir()
+            if d.is_dir():
+                logs += realdata_logs(d)
+            else:
+                print(f"no measured data at {d}: skipped")
+    rows = []
+    shown = list(versions) + [k for k in ("new", "old") if k not in versions and merged]
+    for lg in logs:
+        t, u, w = lg["t"], lg["u"], lg["w"]
+        line_held, line_oth = line_other(t, u, w, lg["others"])
+        rec = {"set": lg["set"], "log": lg["log"], "plant": lg["plant"], "samples": int(t.size),
+               "seconds_of_log": float(t[-1] - t[0]), "noise_deg": noise_floor(w), "line_heldout_rms_deg": line_held,
+               "line_other_rms_deg": line_oth, "open_loop_bench": bool(lg.get("bench", False)), "runs": {}}
+        n = {"new": args.seeds_bench if lg["set"] == "bench" and args.seeds_bench else args.seeds,
+             "old": old_seeds[lg["set"]]}
+        for key in versions:
+            rec["runs"][key] = []
+        for key, runs in merged.get((lg["set"], lg["log"]), {}).get("runs", {}).items():
+            if key not in versions:
+                rec["runs"][key] = runs
+                rec.setdefault("merged_from", {})[key] = args.merge
+        for seed in range(max(n[k] for k in versions)):
+            for key, ident in versions.items():  # interleaved: both see the same load
+                if seed < n[key]:
+                    try:
+                        rec["runs"][key].append(fit_once(ident, t, u, w, seed, lg["others"]))
+                    except ValueError as e:
+                        rec["runs"][key].append({"seed": seed, "error": str(e), "heldout_rms_deg": None,
+                                                 "train_rms_deg": None, "seconds": None, "other_rms_deg": None})
+        for key in rec["runs"]:
+            rec[key] = summary(rec["runs"][key]) | {
+                "seconds_median": statistics.median([r["seconds"] for r in rec["runs"][key] if r["seconds"]] or [0]),
+                "default_heldout_rms_deg": rec["runs"][key][0]["heldout_rms_deg"] if rec["runs"][key] else None,
+                "other": summary(rec["runs"][key], "other_rms_deg") if lg["others"] else None}
+        if "old" in rec and "new" in rec and rec["old"]["min"] and rec["new"]["default_heldout_rms_deg"] is not None:
+            rec["default_over_old_best"] = rec["new"]["default_heldout_rms_deg"] / rec["old"]["min"]
+        out["logs"].append(rec)
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+        row = [lg["set"], lg["log"], rec["noise_deg"], line_held]
+        for key in shown:
+            s = rec.get(key) or {"min": math.nan, "median": math.nan, "max": math.nan, "seconds_median": math.nan}
+            row += [s["min"], s["median"], s["max"], s["seconds_median"]]
+        row.append(rec.get("default_over_old_best", math.nan))
+        rows.append(row)
+        print("  ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in row), flush=True)
+    head = ["set", "log", "noise", "line held-out"]
+    for key in shown:
+        head += [f"{key} min", f"{key} median", f"{key} max", f"{key} s/fit"]
+    head.append("new seed 0 / old best")
+    print()
+    print("Held-out RMS (deg) of the log's last quarter over seeds; s/fit: median wall seconds per fit")
+    print(table(rows, head))
+    print_summary(out, shown)
+    out["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+    print(f"load average at end {os.getloadavg()[0]:.1f}; wrote {args.json}")
+
+
+def print_summary(out: dict, versions: list[str]) -> None:
+    for s in ("sitl", "bench", "realdata"):
+        recs = [r for r in out["logs"] if r["set"] == s]
+        if not recs:
+            continue
+        for key in versions:
+            if not all(key in r for r in recs):
+                continue
+            spreads = [r[key]["spread"] for r in recs if r[key]["spread"]]
+            secs = [r[key]["seconds_median"] for r in recs]
+            beat = sum(1 for r in recs if r[key]["median"] is not None and r[key]["median"] < r["line_heldout_rms_deg"])
+            print(f"{s} {key}: seed spread (max/min held-out) median {statistics.median(spreads):.4f}, "
+                  f"max {max(spreads):.4f}; beats the line (median seed) on {beat}/{len(recs)}; "
+                  f"s/fit median {statistics.median(secs):.2f}")
+        ratios = [r["default_over_old_best"] for r in recs if "default_over_old_best" in r]
+        if ratios:
+            within = sum(1 for x in ratios if x <= 1.05)
+            print(f"{s}: new seed 0 / old best of its seeds: median {statistics.median(ratios):.3f}, max "
+                  f"{max(ratios):.3f}; within 1.05x on {within}/{len(ratios)}")
+        if s == "sitl":
+            for plant in SITL_PLANTS:
+                bench = [r for r in recs if r["plant"] == plant and r["open_loop_bench"]]
+                closed = [r for r in recs if r["plant"] == plant and not r["open_loop_bench"]]
+                if bench and closed and "new" in bench[0] and bench[0]["new"]["median"]:
+                    ratio = [r["new"]["default_heldout_rms_deg"] / bench[0]["new"]["median"] for r in closed
+                             if r["new"]["default_heldout_rms_deg"] is not None]
+                    print(f"sitl {plant}: closed-loop held-out / open-loop bench held-out (new, seed 0): median "
+                          f"{statistics.median(ratio):.2f}, max {max(ratio):.2f}; within 1.5x on "
+                          f"{sum(1 for x in ratio if x <= 1.5)}/{len(ratio)}")
+
+
+if __name__ == "__main__":
+    main()
