@@ -38,21 +38,31 @@ from _common import median_time, table  # noqa: E402
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
 
 
-def stitch_bin(src: Path, dst: Path, copies: int) -> float:
-    """``copies`` copies of a DataFlash log end to end, each copy's TimeUS moved on by the log's span; the
-    stitched log's span in s."""
+def cycle_span(path: Path) -> float:
+    with path.open() as fh:
+        rows = list(csv.reader(fh))
+    i = rows[0].index("t")
+    return float(rows[-1][i]) - float(rows[1][i])
+
+
+def stitch_bin(src: Path, dst: Path, copies: int, at_least_s: float) -> tuple[float, float]:
+    """``copies`` copies of a DataFlash log end to end (the last, cut short, message of each dropped), each
+    copy's TimeUS moved on by the shift (the log's span, or ``at_least_s``); (stitched span, shift) in s."""
     from pymavlink import DFReader
 
     df = DFReader.DFReader_binary(str(src))
-    raw = bytearray(src.read_bytes())
-    pos = []  # byte offsets of every TimeUS field (a Q first field named TimeUS)
+    pos, end = [], 0  # byte offsets of every TimeUS field (a Q first field named TimeUS); end of the last message
     for mtype, fmt in df.formats.items():
+        offs = [o for o in df.offsets[mtype][: df.counts[mtype]] if o + fmt.len <= df.data_len]  # whole ones
+        if len(offs):
+            end = max(end, int(offs[-1]) + fmt.len)
         if fmt.columns and fmt.columns[0] == "TimeUS" and fmt.format.startswith("Q"):
-            pos.extend(o + 3 for o in df.offsets[mtype][: df.counts[mtype]])
-    pos = np.array(sorted(pos), dtype=np.int64)
+            pos.extend(o + 3 for o in offs)
+    raw = bytearray(src.read_bytes()[:end])
+    pos = np.array(sorted(p for p in pos if p + 8 <= end), dtype=np.int64)
     stamps = np.array([struct.unpack_from("<Q", raw, p)[0] for p in pos], dtype=np.int64)
     live = stamps[stamps > 0]
-    span_us = int(live.max() - live.min()) + 20_000
+    span_us = max(int(live.max() - live.min()), int(at_least_s * 1e6)) + 1_000_000
     with dst.open("wb") as f:
         for k in range(copies):
             out = bytearray(raw)
@@ -129,7 +139,7 @@ def main() -> int:
         d = Path(d)
         for label, copies in (("real flight", 1), (f"stitched x{args.copies}", args.copies)):
             b, c = d / f"f{copies}.BIN", d / f"f{copies}.csv"
-            total_s, one_s = stitch_bin(Path(args.bin), b, copies)
+            total_s, one_s = stitch_bin(Path(args.bin), b, copies, cycle_span(Path(args.cycles)))
             stitch_cycles(Path(args.cycles), c, copies, one_s)
             minutes = total_s / 60.0
             t_plain, _ = median_time(lambda b=b: plain_pass(b), repeats=args.repeats, warmup=0)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -225,93 +226,165 @@ def _text_event(t: float, text: str) -> FcEvent:
 
 # ---------------------------------------------------------------------------------------------- DataFlash
 
-DF_TYPES = {"NVAL", "RCOU", "RCO2", "ATT", "RATE", "PIDR", "ARSP", "CTUN", "MODE", "MSG", "PARM", "ERR", "IMU"}
+DF_BULK = ("NVAL", "RCOU", "RCO2", "ATT", "RATE", "PIDR", "IMU", "ARSP", "CTUN")  # read as columns
+DF_EVENTS = ("MODE", "MSG", "PARM", "ERR")  # read message by message (few, with text)
 ERR_SUBSYS = {2: "radio", 5: "radio failsafe", 6: "battery failsafe", 7: "GPS failsafe", 8: "GCS failsafe",
               9: "fence", 12: "EKF/IMU", 16: "EKF failsafe", 17: "baro", 24: "failsafe", 26: "pilot input"}
+_STRUCT_TO_NUMPY = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8", "Q": "<u8",
+                    "f": "<f4", "d": "<f8"}
+
+
+def _df_dtype(msg_struct: str) -> np.dtype | None:
+    """A packed numpy dtype for a DataFlash message body, from DFReader's struct format (None if unknown)."""
+    fields = []
+    for count, code in re.findall(r"(\d*)([a-zA-Z])", msg_struct.lstrip("<")):
+        if code == "s":
+            fields.append(f"S{count}")
+        elif code in _STRUCT_TO_NUMPY and not count:
+            fields.append(_STRUCT_TO_NUMPY[code])
+        else:
+            return None
+    return np.dtype([(f"f{i}", t) for i, t in enumerate(fields)])
+
+
+def _df_columns(df, name: str) -> dict[str, np.ndarray] | None:
+    """Every message of type ``name`` as columns (multipliers applied), gathered straight from the file at
+    the offsets pymavlink's DFReader indexed; None when the log has none or a format we cannot map."""
+    mtype = df.name_to_id.get(name)
+    if mtype is None or df.counts[mtype] <= 0:
+        return None
+    fmt = df.formats[mtype]
+    dtype = _df_dtype(fmt.msg_struct)
+    if dtype is None or dtype.itemsize != fmt.len - 3:
+        return None
+    offs = np.asarray(df.offsets[mtype][: df.counts[mtype]], dtype=np.int64)
+    offs = offs[offs + fmt.len <= df.data_len]
+    buf = np.frombuffer(df.data_map, dtype=np.uint8)
+    rows = np.ascontiguousarray(buf[offs[:, None] + 3 + np.arange(fmt.len - 3)]).view(dtype).ravel()
+    out = {}
+    for i, col in enumerate(fmt.columns):
+        v = rows[f"f{i}"]
+        mult = fmt.msg_mults[i] if i < len(fmt.msg_mults) else None
+        out[col] = v.astype(np.float64) * mult if mult else v
+    return out
+
+
+def _dataflash_reader(path: str):
+    """pymavlink's DFReader_binary (its index of every message's offset) without its search for a GPS
+    time base: that search reads a log without GPS messages to its end, and this reader needs only TimeUS,
+    the FC's boot clock."""
+    from pymavlink import DFReader
+
+    class BootClockReader(DFReader.DFReader_binary):
+        def init_clock(self) -> None:
+            self._rewind(keep_messages=True)
+            self.init_clock_usec()
+
+    return BootClockReader(path, zero_time_base=True)
 
 
 def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
-    from pymavlink import DFReader
-
     try:
-        df = DFReader.DFReader_binary(str(p), zero_time_base=False)
+        df = _dataflash_reader(str(p))
     except Exception as e:  # noqa: BLE001 - a damaged file: one line, not a traceback
         raise UserError(f"{p}: not a readable DataFlash log ({e})") from None
-    named, other = _Columns(), _Columns()
-    outs: dict[float, list[float]] = {}
+    cols = {}
+    for k, name in enumerate(DF_BULK):
+        c = _df_columns(df, name)
+        if c is not None and "TimeUS" in c:
+            cols[name] = c
+        if progress is not None:
+            progress(k + 1, len(DF_BULK) + 1)
+    named = _df_named(cols.get("NVAL"))
+    t_out, a_out = _df_outputs(cols.get("RCOU"), cols.get("RCO2"))
+
+    def series(name: str, field: str, scale: float = 1.0, instance0: bool = False) -> Series | None:
+        c = cols.get(name)
+        if c is None or field not in c:
+            return None
+        sel = c["I"] == 0 if instance0 and "I" in c else np.ones(c["TimeUS"].size, bool)
+        v = c[field][sel].astype(np.float64) * scale
+        ok = np.isfinite(v)
+        return _series(c["TimeUS"][sel][ok] * 1e-6, v[ok]) if ok.any() else None
+
+    # roll rate: RATE (Copter-style logs), else the IMU's gyro, else the roll controller's PIDR.Act (its
+    # own measurement, current only while the controller runs)
+    rate = (series("RATE", "R") or series("IMU", "GyrX", math.degrees(1.0), instance0=True)
+            or series("PIDR", "Act"))
+    airspeed = series("ARSP", "Airspeed", instance0=True) or series("CTUN", "As")
+    events, params = _df_events(df)
+    if progress is not None:
+        progress(1, 1)
+    fl = FcLog(path=str(p), fmt="dataflash", autopilot="ardupilot", named=named, outputs_t=t_out, outputs=a_out,
+               roll=series("ATT", "Roll"), roll_rate=rate, airspeed=airspeed, events=events, params=params,
+               aileron_channels=ardupilot_ailerons(params))
+    _note_contents(fl)
+    return fl
+
+
+def _df_named(c: dict[str, np.ndarray] | None) -> dict[str, Series]:
+    """NVAL columns -> one series per name (only what component 191, the bridge, sent)."""
+    if c is None:
+        return {}
+    sel = c["SCom"] == BRIDGE_COMPONENT if "SCom" in c else np.ones(c["TimeUS"].size, bool)
+    names, t, v = c["Name"][sel], c["TimeUS"][sel] * 1e-6, c["Value"][sel].astype(np.float64)
+    out = {}
+    for raw in np.unique(names):
+        k = names == raw
+        out[_text(raw)] = _series(t[k], v[k])
+    return out
+
+
+def _df_outputs(rcou, rco2) -> tuple[np.ndarray, np.ndarray]:
+    """RCOU (outputs 1-14) and RCO2 (15-16, same stamps) -> times and a (samples, 16) array, us."""
+    if rcou is None:
+        return np.zeros(0), np.zeros((0, MAX_CHANNELS))
+    t = rcou["TimeUS"] * 1e-6
+    a = np.full((t.size, MAX_CHANNELS), np.nan)
+    for i in range(1, 15):
+        if f"C{i}" in rcou:
+            a[:, i - 1] = rcou[f"C{i}"]
+    if rco2 is not None:
+        t2 = rco2["TimeUS"] * 1e-6
+        k = np.minimum(np.searchsorted(t, t2), t.size - 1)
+        same = np.abs(t[k] - t2) < 1e-6
+        for j, col in enumerate(("C15", "C16")):
+            if col in rco2:
+                a[k[same], 14 + j] = rco2[col][same]
+    order = np.argsort(t, kind="stable")
+    return t[order], a[order]
+
+
+def _df_events(df) -> tuple[list[FcEvent], dict[str, float]]:
+    """Modes, texts, parameter changes and errors; the parameters as the flight ended."""
     events: list[FcEvent] = []
     params: dict[str, float] = {}
-    last_param: dict[str, float] = {}
-    total = max(1, df.data_len)
-    types = [t for t in DF_TYPES if t in df.name_to_id]
-    gyro_seen = False
-    n = 0
-    while True:
-        m = df.recv_match(type=types)
+    last: dict[str, float] = {}
+    types = [t for t in DF_EVENTS if t in df.name_to_id]
+    df.rewind()
+    while types:
+        m = df.recv_match(type=types, strict=True)
         if m is None:
             break
-        n += 1
-        if progress is not None and n % 20000 == 0:
-            progress(df.offset, total)
         mt = m.get_type()
         t = _f(m, "TimeUS", 0) * 1e-6
-        if mt == "NVAL":
-            if _f(m, "SCom", BRIDGE_COMPONENT) == BRIDGE_COMPONENT:
-                named.add(_text(_f(m, "Name", "")), t, _f(m, "Value"))
-        elif mt in ("RCOU", "RCO2"):
-            first = 1 if mt == "RCOU" else 15
-            row = outs.setdefault(t, [math.nan] * MAX_CHANNELS)
-            for i in range(first, min(first + 14, MAX_CHANNELS + 1)):
-                v = _f(m, f"C{i}")
-                if v is None and mt == "RCO2":
-                    v = _f(m, f"C{i - first + 1}")
-                if v is not None:
-                    row[i - 1] = float(v)
-        elif mt == "ATT":
-            other.add("roll", t, _f(m, "Roll"))
-        elif mt == "RATE":
-            other.add("rate", t, _f(m, "R"))
-        elif mt == "PIDR":
-            other.add("pidr", t, _f(m, "Act"))
-        elif mt == "IMU" and _f(m, "I", 0) == 0:
-            gyro_seen = True
-            gx = _f(m, "GyrX")
-            if gx is not None:
-                other.add("gyro", t, math.degrees(gx))
-        elif mt == "ARSP" and _f(m, "I", 0) == 0:
-            other.add("airspeed", t, _f(m, "Airspeed"))
-        elif mt == "CTUN":
-            other.add("ctun_as", t, _f(m, "As"))
-        elif mt == "MODE":
+        if mt == "MODE":
             events.append(_mode_event(t, _ardupilot_mode_name(df, m)))
         elif mt == "MSG":
             events.append(_text_event(t, _text(_f(m, "Message", ""))))
         elif mt == "PARM":
             name, value = _text(_f(m, "Name", "")), float(_f(m, "Value", math.nan))
-            if name in last_param and last_param[name] != value and not name.startswith(HOUSEKEEPING_PARAMS):
-                events.append(FcEvent(t, "param", f"{name} {last_param[name]:g} -> {value:g}"))
-            last_param[name] = value
+            if name in last and last[name] != value and not name.startswith(HOUSEKEEPING_PARAMS):
+                events.append(FcEvent(t, "param", f"{name} {last[name]:g} -> {value:g}"))
+            last[name] = value
             params.setdefault(name, value)
         elif mt == "ERR":
             subsys, code = int(_f(m, "Subsys", 0)), int(_f(m, "ECode", 0))
             sub = ERR_SUBSYS.get(subsys, f"subsystem {subsys}")
             kind = "failsafe" if "failsafe" in sub and code != 0 else "text"
             events.append(FcEvent(t, kind, f"ERR {sub} code {code}"))
-    if progress is not None:
-        progress(total, total)
-    o = other.series()
-    # final parameter values: the ones the flight ended with (PARM re-logged on change)
-    params.update(last_param)
-    t_out, a_out = _outputs_array(sorted(outs.items()))
-    # roll rate: RATE (Copter-style logs), else the IMU's gyro, else the roll controller's PIDR.Act (its
-    # own measurement, current only while the controller runs)
-    rate = o.get("rate") or (o.get("gyro") if gyro_seen else None) or o.get("pidr")
-    airspeed = o.get("airspeed") or o.get("ctun_as")
-    fl = FcLog(path=str(p), fmt="dataflash", autopilot="ardupilot", named=named.series(), outputs_t=t_out,
-               outputs=a_out, roll=o.get("roll"), roll_rate=rate, airspeed=airspeed,
-               events=sorted(events, key=lambda e: e.t), params=params, aileron_channels=ardupilot_ailerons(params))
-    _note_contents(fl)
-    return fl
+    params.update(last)  # PARM is logged again on a change: the values the flight ended with
+    return sorted(events, key=lambda e: e.t), params
 
 
 def _f(m, name: str, default=None):
