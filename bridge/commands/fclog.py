@@ -461,12 +461,10 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
     autopilot = "ardupilot"
     us_unwrap = _Unwrap()
     size = max(1, p.stat().st_size)
-    types = ["NAMED_VALUE_FLOAT", "SERVO_OUTPUT_RAW", "ATTITUDE", "VFR_HUD", "HEARTBEAT", "STATUSTEXT",
-             "PARAM_VALUE", "SYSTEM_TIME", "ACTUATOR_OUTPUT_STATUS"]
     n = 0
-    while True:
+    while True:  # every message, for the senders' sequence numbers; the ones used are picked below
         try:
-            m = mlog.recv_match(type=types)
+            m = mlog.recv_match()
         except Exception as e:  # noqa: BLE001 - a truncated tail
             log.debug("tlog read stopped: %s", e)
             break
@@ -476,6 +474,8 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
         if progress is not None and n % 20000 == 0:
             progress(mlog.f.tell() if hasattr(mlog, "f") else 0, size)
         mt = m.get_type()
+        if mt == "BAD_DATA":
+            continue
         wall = float(getattr(m, "_timestamp", 0.0))
         src_sys, src_comp = m.get_srcSystem(), m.get_srcComponent()
         key = f"{src_sys}/{src_comp}"
