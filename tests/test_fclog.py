@@ -96,6 +96,8 @@ def test_ground_station_tlog_of_the_same_flight(dataflash):
     assert hi - lo > 20 and best < 0.2, best
     src = {k: v for k, v in tl.link_loss.items() if k.endswith("/191")}
     assert src and all(received > 100 for received, _ in src.values())
+    received, lost = tl.link_loss["1/1"]  # the FC's own messages over a loopback TCP link: none lost
+    assert received > 1000 and lost <= received // 100
 
 
 def test_identify_reads_a_dataflash_log_by_wing(caplog):
