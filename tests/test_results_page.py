@@ -89,6 +89,20 @@ def margins(folder: Path) -> None:
     (folder / results_page.MARGINS).write_text(json.dumps(rec))
 
 
+def field_tuning(folder: Path) -> None:
+    """bench_field_tuning's figures as ``--json`` writes them (keys sorted, the methods' order kept apart)."""
+    files = ["model/boucwen.py"]
+    rec = {"benchmark": "bench_field_tuning", "rigged_s": 60.0, "drift_s": 300.0, "seed": 0, "drift_mm": 0.61,
+           "methods": ["matched", "stale", "cal+adapt"], "ffpi_gains": [0.7, 20.0],
+           "rigged": {"pretension": {"pretension_offset_mm": 0.8, "pretension_gain": 1.1}},
+           "rows": [{"condition": "rigged", "mode": "ff",
+                     "rms_deg": {"cal+adapt": 0.12, "matched": 0.1, "stale": 0.5}}],
+           "failures": [{"failure": "sensor stuck", "rms_before_deg": 0.1, "rms_adapt_on_deg": 0.3,
+                         "rms_adapt_off_deg": 0.2, "offset_moved_mm": 0.05}],
+           "sources": {"files": files, "hash": sources_hash(files)}}
+    (folder / results_page.FIELD_TUNING).write_text(json.dumps(rec, sort_keys=True))
+
+
 def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_beside(tmp_path):
     here = results_page.source_hash(results_page.DIAG_SOURCES)
     archive(tmp_path, here)
@@ -96,6 +110,7 @@ def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_
     realdata(tmp_path, here)
     sitl(tmp_path)
     margins(tmp_path)
+    field_tuning(tmp_path)
     inp = results_page.gather(tmp_path)
     assert inp.current and inp.shown.sources == here and inp.before.sources == "000000000000"
     text = results_page.render(inp)
@@ -115,6 +130,9 @@ def test_the_page_shows_this_codes_archive_with_the_default_and_the_code_before_
     assert "| paper, bench (Lee et al. 2017) | 1.727 | 2.04 |  | 0.285 |  |" in text
     assert "| gains | gain margin |\n| --- | --- |\n| default | 2.70 (8.6 dB) |\n| paper-horn | 1.10 (0.8 dB) |" in text
     assert "(paper wing: 1.90 deg/mm)" in text
+    assert "| rigged | ff | 0.100 | 0.500 (5.00x) | 0.120 (1.20x) |" in text
+    assert "by `pretension` (pretension_gain 1.1, pretension_offset_mm 0.8), flown 60 s" in text
+    assert "| sensor stuck | 0.100 | 0.300 | 0.200 | 0.050 |" in text
     assert results_page.render(results_page.gather(tmp_path)) == text  # the same inputs give the same page
 
 
