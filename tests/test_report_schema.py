@@ -18,6 +18,8 @@ from warpbridge.model.model_error import FEATURE_SETS
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "report-format.md"
 
+pytestmark = pytest.mark.slow  # the module's fixture identifies a model and runs two diagnoses
+
 
 def run(*args) -> None:
     assert main([str(a) for a in args]) == 0, args
