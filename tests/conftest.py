@@ -1,5 +1,8 @@
-"""How the suite is spread over pytest-xdist's workers (``-n 2 --dist loadgroup``, set in pyproject.toml).
+"""How the suite is spread over pytest-xdist's workers (``-n auto --dist loadgroup``, set in pyproject.toml).
 
+- ``-n auto`` means two workers, or one per core where there are fewer, for a run of the suite or of a folder
+  (``PYTEST_XDIST_AUTO_NUM_WORKERS`` or ``-n N`` say otherwise); a run of a single file or test stays in one
+  process, where starting the workers would cost more than they save.
 - Tests that share a module- or class-scoped fixture defined in their own test file (a simulated log and the
   model identified on it, say) run on one worker, so that the fixture is built once, not once per worker:
   they get an ``xdist_group`` named after their file.
@@ -11,9 +14,32 @@ Without xdist (``-n 0``, or the plugin absent) the same order holds and the grou
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 SHARED_SCOPES = ("module", "class")
+MAX_WORKERS = 2  # measured on two cores; tests that run three processes in real time want a core each besides
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
+    """Workers for ``-n auto`` (see the module docstring); None leaves the choice to the environment variable."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    args = [a for a in config.args if not a.startswith("-")]
+    if len(args) == 1 and ("::" in args[0] or args[0].endswith(".py")):
+        return 0
+    n = min(MAX_WORKERS, cores())
+    return n if n > 1 else 0
 
 
 def shares_a_fixture_of_its_file(item: pytest.Item) -> bool:
