@@ -166,6 +166,23 @@ def test_the_doc_documents_every_top_level_key_of_the_schema(name):
     assert load_schema(name)["properties"]["format"]["const"] in text
 
 
+def _property_names(node: object) -> set[str]:
+    """Every key any object of a schema lists under ``properties``, at any depth."""
+    if isinstance(node, list):
+        return set().union(*map(_property_names, node)) if node else set()
+    if not isinstance(node, dict):
+        return set()
+    names = set(node["properties"]) if isinstance(node.get("properties"), dict) else set()
+    return names.union(*map(_property_names, node.values()))
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMAS))
+def test_the_doc_names_every_key_the_schema_has_at_any_depth(name):
+    text = DOC.read_text(encoding="utf-8")
+    missing = sorted(k for k in _property_names(load_schema(name)) if f"`{k}`" not in text and f'"{k}"' not in text)
+    assert not missing, f"docs/report-format.md never names {missing}"
+
+
 def test_the_doc_names_every_effect_parameter():
     text = DOC.read_text(encoding="utf-8")
     missing = [f for fields, _, _ in EFFECT_FIELDS.values() for f in fields if f"`{f}`" not in text]
