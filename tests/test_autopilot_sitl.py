@@ -45,6 +45,7 @@ from warpbridge.sitl.maestro_emu import MaestroEmulator
 ARDUPLANE = os.environ.get("WARPBRIDGE_ARDUPLANE", "")
 pytestmark = [
     pytest.mark.autopilot_sitl,
+    pytest.mark.xdist_group("arduplane_sitl"),  # one worker, one after another: SITLs compete for ports and CPU
     pytest.mark.skipif(not (ARDUPLANE and os.access(ARDUPLANE, os.X_OK)),
                        reason="opt-in: set WARPBRIDGE_ARDUPLANE to an ArduPlane SITL binary (docs/autopilot-sitl.md)"),
 ]
@@ -64,8 +65,10 @@ def _port_free(port: int, kind: int) -> bool:
 
 
 def free_instance() -> int:
-    """An ArduPilot SITL instance number whose ports are all free (other runs may use 0..)."""
-    for n in range(20, 200):
+    """An ArduPilot SITL instance number whose ports are all free (other runs may use 0..). Each process
+    starts its search elsewhere (by its pid), so that parallel workers starting a SITL at the same moment
+    do not pick the same free number."""
+    for n in sorted(range(20, 200), key=lambda k: (k - os.getpid()) % 180):
         tcp = [5760 + 10 * n, 5762 + 10 * n, 5763 + 10 * n]
         if all(_port_free(p, socket.SOCK_STREAM) for p in tcp) and _port_free(5501 + 10 * n, socket.SOCK_DGRAM):
             return n
