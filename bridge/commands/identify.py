@@ -30,10 +30,9 @@ from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.commands.modelio import save_model
 from warpbridge.bridge.commands.plots import plot_identification
 from warpbridge.bridge.errors import UserError
-from warpbridge.model import identify as ident
 from warpbridge.model.diagnose import bench_known_error
 from warpbridge.model.effects import Effects
-from warpbridge.model.identify import DELAY_GRID_S
+from warpbridge.model.identify import DELAY_GRID_S, identify
 from warpbridge.model.input_check import input_check
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
@@ -136,8 +135,8 @@ def main(args: argparse.Namespace) -> int:
     progress = Progress(enabled=not args.quiet)
     t0 = time.perf_counter()
     try:
-        res = ident.identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed,
-                             maxiter=args.maxiter, max_delay_s=args.max_delay, progress=progress)
+        res = identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed, maxiter=args.maxiter,
+                       max_delay_s=args.max_delay, progress=progress)
     except ValueError as e:
         raise UserError(f"{args.log}: {e}") from None
     finally:
