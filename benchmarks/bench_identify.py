@@ -41,6 +41,10 @@ from scipy import signal
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
 
+from warpbridge.model import identify as current  # noqa: E402
+from warpbridge.model.boucwen import BoucWenParams, forward  # noqa: E402
+from warpbridge.model.initial_state import estimate_z0  # noqa: E402
+
 FS = 500.0
 DURATION = 60.0
 NOISE = 0.05
@@ -261,9 +265,6 @@ class Run:
 
 
 def run_identify(ident, t, u, w, check, wrong, seed) -> Run:
-    from warpbridge.model.boucwen import forward
-    from warpbridge.model.initial_state import estimate_z0
-
     t0, c0 = time.perf_counter(), time.process_time()
     r = ident.identify(t, u, w, prior=wrong, seed=seed)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -288,9 +289,6 @@ def main() -> None:
     ap.add_argument("--families", default=",".join(FAMILIES), help=f"comma-separated of {', '.join(FAMILIES)}")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    from warpbridge.model import identify as current
-    from warpbridge.model.boucwen import BoucWenParams
-
     wrong = BoucWenParams(a1=-0.005, a2=0.5, a3=1.5, az=0.3, A=8.0, n=2.0, b=(5, -2, 1, -1, 3, -5))
     versions = {"new": current}
     if args.baseline:

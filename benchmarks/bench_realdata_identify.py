@@ -39,6 +39,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
 
+from warpbridge.bridge.cli import main as cli  # noqa: E402
+from warpbridge.model.boucwen import BoucWenParams, forward  # noqa: E402
+
 
 def default_dir() -> Path:
     """``shared/realdata/tsm-kaist`` beside the repository or one of the folders above it."""
@@ -77,8 +80,6 @@ def rms(e: np.ndarray) -> float:
 
 class Bench:
     def __init__(self, tmp: Path) -> None:
-        from warpbridge.bridge.cli import main as cli
-
         self.cli = cli
         self.tmp = tmp
         self.models: dict[str, tuple[Path, dict, np.ndarray, float]] = {}
@@ -200,8 +201,6 @@ def main(data: Path) -> None:
     t = seg[:, 0]
     train, held = t < fit["split_time_s"], t >= fit["split_time_s"]
     late = t >= t[0] + 1.1
-    from warpbridge.model.boucwen import BoucWenParams, forward
-
     p = BoucWenParams.from_dict(json.loads((tmp / "zero2000.json").read_text())["params"])
     at_rest = forward(p, seg[:, 1])[0]
     errs = [pred - seg[:, 2], corrected - seg[:, 2], at_rest - seg[:, 2]]
