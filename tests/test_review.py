@@ -232,6 +232,11 @@ def test_real_flight_tracking_roll_authority_and_link(real):
     for w in ("left", "right"):
         s = rv.tracking[w]["all"][0]
         assert s.n > 1000 and s.rms < 2.0
+        ph = {p.label: p for p in rv.tracking[w]["phase"]}
+        assert all(p.n > 500 for p in ph.values()), ph
+        # the wing lags its setpoint: below it while it rises, above it while it falls; worst after a turn
+        assert ph["loading"].mean < 0 < ph["unloading"].mean
+        assert ph["after reversal"].rms > ph["holding"].rms
     # right stick: the left wing gains lift (left - right > 0) and the aircraft rolls right (p > 0)
     fitted = [g for g in rv.roll_authority if g.reliable]
     assert len(fitted) >= 3 and all(g.gain > 0 for g in fitted), rv.roll_authority

@@ -37,6 +37,7 @@ DIAGNOSE_MIN_HZ = 50.0  # below this a log locates a gap but cannot tell delay, 
 MIN_AIRBORNE_MS = 6.0  # samples below this airspeed are left out of the roll-authority fit
 REVERSAL_WINDOW_S = 0.5  # "after reversal": this long after the setpoint turns
 HOLD_RATE_DEG_S = 0.5  # |d setpoint / dt| below this: holding
+RATE_HALF_WINDOW_S = 0.05  # the setpoint's rate is taken over twice this
 BAND_WIDTH_MS = 3.0
 MIN_BAND_SAMPLES = 30
 LAG_GRID_S = np.arange(0.0, 0.42, 0.02)  # roll rate follows the warp after this much at most
@@ -234,8 +235,11 @@ def phases(t: np.ndarray, setpoint: np.ndarray) -> np.ndarray:
     ok = np.isfinite(setpoint)
     if ok.sum() < 3:
         return out
-    sp = np.interp(t, t[ok], setpoint[ok])
-    rate = np.gradient(sp, t)
+    # the rate over +-RATE_HALF_WINDOW_S: the setpoint is a staircase (held between the FC's messages), whose
+    # sample-to-sample gradient is zero between steps
+    tt, ss = t[ok], setpoint[ok]
+    h = RATE_HALF_WINDOW_S
+    rate = (np.interp(t + h, tt, ss) - np.interp(t - h, tt, ss)) / (2 * h)
     moving = np.abs(rate) >= HOLD_RATE_DEG_S
     out[:] = 3
     out[moving & (rate > 0)] = 0
