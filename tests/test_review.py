@@ -188,7 +188,7 @@ def test_review_command_writes_html_and_json(tmp_path, synthetic, monkeypatch):
     cyc = rs.write_cycle_log(tmp_path / "c.csv", cycle)
     out = tmp_path / "r.html"
     args = Namespace(log="synthetic.BIN", cyclelog=str(cyc), output=str(out), channel=None, bands="9,15,21,24",
-                     trim=1500.0, half_range=400.0, quiet=True)
+                     trim=1500.0, half_range=400.0, no_progress=True)
     assert review_cmd.main(args) == 0
     page = out.read_text()
     assert page.count("data:image/png;base64,") == 6 and "Roll authority" in page

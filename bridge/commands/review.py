@@ -435,7 +435,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trim", type=float, default=1500.0, help="aileron output trim, us (default 1500)")
     p.add_argument("--half-range", type=float, default=400.0,
                    help="aileron output from trim to full deflection, us (default 400)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _progress(quiet: bool):
@@ -470,7 +470,7 @@ def main(args: argparse.Namespace) -> int:
         if len(bands) < 2:
             raise UserError("--bands: give at least two edges")
     log.info("reading %s", args.log)
-    fc = read_fc_log(args.log, progress=_progress(args.quiet))
+    fc = read_fc_log(args.log, progress=_progress(args.no_progress))
     f0, f1 = fc.span
     log.info("read %.0f s of flight from %s in %.1f s", f1 - f0, args.log, time.perf_counter() - t0)
     cl = read_cycle_log(args.cyclelog) if args.cyclelog else None
