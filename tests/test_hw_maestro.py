@@ -16,6 +16,11 @@ from warpbridge.hw.loop import LoopBackend
 from warpbridge.hw.maestro import NO_REPLY, Maestro, error_names
 from warpbridge.sitl.maestro_emu import PROTOCOL_ERROR, MaestroEmulator
 
+# How long a read that expects an answer waits for it. The emulated board is a thread of this process, which a
+# busy machine can starve for far longer than a real board's millisecond (the driver's default, 20 ms, is for
+# that): the answer ends the wait, so a long one costs nothing when the board answers.
+ANSWER_S = 2.0
+
 
 class Board:
     """An emulated board recording the targets it receives; analog inputs from a dict."""
@@ -38,7 +43,7 @@ def board():
 
 @pytest.fixture
 def maestro(board):
-    m = Maestro(board.emu.device_path, limits={0: (1100.0, 1900.0)})
+    m = Maestro(board.emu.device_path, limits={0: (1100.0, 1900.0)}, timeout=ANSWER_S)
     yield m
     m.close()
 
@@ -113,13 +118,14 @@ def test_bad_limits_are_refused(board):
         Maestro(board.emu.device_path, limits={2: (1900.0, 1100.0)})
 
 
-def test_silent_board_gives_none_not_a_hang(board, maestro):
+def test_silent_board_gives_none_not_a_hang(board):
     board.analog[5] = 512
     board.emu.mute = True
-    assert maestro.read_counts(5) is None
-    assert maestro.poll_errors() == NO_REPLY
-    board.emu.mute = False
-    assert answers_until(lambda: maestro.read_counts(5)) == 512.0  # once the lost answer is given up on
+    with Maestro(board.emu.device_path) as maestro:  # the driver's default timeout
+        assert maestro.read_counts(5) is None
+        assert maestro.poll_errors() == NO_REPLY
+        board.emu.mute = False
+        assert answers_until(lambda: maestro.read_counts(5)) == 512.0  # once the lost answer is given up on
 
 
 def answers_until(read, deadline_s: float = 5.0):
@@ -175,7 +181,7 @@ def test_garbage_on_the_line_is_flagged_and_the_next_command_works(board, maestr
 
 def test_pololu_protocol_with_device_number(board):
     board.analog[1] = 901
-    with Maestro(board.emu.device_path, device_number=12) as m:
+    with Maestro(board.emu.device_path, device_number=12, timeout=ANSWER_S) as m:
         m.set_pulse(3, 1600.0)
         assert m.read_counts(1) == 901.0
         assert board.targets == [(3, 6400)]
@@ -208,7 +214,7 @@ def test_replug_behind_a_stable_link_with_backoff(tmp_path):
     b.analog[0] = 100
     path = b.emu.start()
     try:
-        m = Maestro(path)
+        m = Maestro(path, timeout=ANSWER_S)
         backoff = Backoff(initial_s=0.1, max_s=0.4, clock=lambda: clock[0])
         b.emu.close_port()
         with pytest.raises(DeviceError):
@@ -237,7 +243,7 @@ def test_replug_behind_a_stable_link_with_backoff(tmp_path):
 def test_spy_url_dumps_the_traffic(board, tmp_path):
     board.analog[3] = 321
     log = tmp_path / "spy.txt"
-    servo = hw.open_servo(f"maestro:spy://{board.emu.device_path}?file={log},115200")
+    servo = hw.open_servo(f"maestro:spy://{board.emu.device_path}?file={log},115200,timeout={ANSWER_S:g}")
     servo.set_pulse(0, 1500.0)
     assert servo.read_counts(3) == 321.0
     servo.close()
@@ -247,7 +253,7 @@ def test_spy_url_dumps_the_traffic(board, tmp_path):
 
 def test_one_maestro_serves_servo_and_sensor(board):
     board.analog[6] = 250
-    servo = hw.open_servo(f"maestro:{board.emu.device_path}", limits={0: (1200.0, 1800.0)})
+    servo = hw.open_servo(f"maestro:{board.emu.device_path},timeout={ANSWER_S:g}", limits={0: (1200.0, 1800.0)})
     assert isinstance(servo, hw.ServoOutput)
     assert hw.open_sensor("maestro:", shared_servo=servo) is servo
     assert hw.open_sensor(f"maestro:{board.emu.device_path}", shared_servo=servo) is servo
