@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+import functools
 import json
 import math
 from concurrent.futures import ThreadPoolExecutor
@@ -556,7 +558,13 @@ def test_where_puts_a_drift_in_time_and_its_gap_in_the_late_cells():
 # ---- bench-to-field: the model-error model, the initial state, bounds, progress --------------------------
 
 def _bench_model(bench_effects: Effects, seed: int = 20) -> ModelFile:
-    """The paper's model with the error model learned on a bench whose wing has ``bench_effects`` besides."""
+    """The paper's model with the error model learned on a bench whose wing has ``bench_effects`` besides (a
+    copy of the one learned first in this process: several tests judge on the same bench)."""
+    return copy.deepcopy(_learned_bench_model(bench_effects, seed))
+
+
+@functools.cache
+def _learned_bench_model(bench_effects: Effects, seed: int) -> ModelFile:
     t, u, w, _ = make_log(bench_effects, seed=seed, duration=30.0)
     em = bench_error_model(P, Effects(), t, u, w)
     wp, _, _ = forward(P, u)

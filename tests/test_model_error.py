@@ -172,15 +172,22 @@ def test_model_file_round_trip_and_files_without_the_field():
     assert "model_error" not in ModelFile(params=P).to_dict()
 
 
+@pytest.fixture(scope="module")
+def fitted_field() -> dict:
+    """A model-error field as a model file holds it, fitted once for the damages below."""
+    t, u, w = _log(seed=7)
+    return fit_error_model(t, u, w, w + 0.05 * np.sin(t), noise=0.01).to_dict()
+
+
 @pytest.mark.parametrize("change, needle", [
     ({"format": "other/1"}, "unsupported model_error format"),
     ({"sets": ["rate"]}, "prefix"),
     ({"theta": [1.0]}, "does not match"),
     ({"w_scale": -1.0}, "positive"),
 ])
-def test_a_damaged_model_error_field_is_refused_with_a_reason(change, needle):
-    t, u, w = _log(seed=7)
-    d = fit_error_model(t, u, w, w + 0.05 * np.sin(t), noise=0.01).to_dict()
+def test_a_damaged_model_error_field_is_refused_with_a_reason(fitted_field, change, needle):
+    d = dict(fitted_field)
+    ErrorModel.from_dict(d)  # whole, it is read
     d.update(change)
     with pytest.raises(ValueError, match=needle):
         ErrorModel.from_dict(d)
