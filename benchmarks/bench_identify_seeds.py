@@ -113,12 +113,12 @@ def bench_logs() -> list[dict]:
     return out
 
 
-def record_sitl(d: Path) -> None:
+def record_sitl(d: Path, seeds: tuple[int, ...] = SITL_SEEDS) -> None:
     """``warpbridge sitl`` runs into d (each skipped when its cycle log is there)."""
     d.mkdir(parents=True, exist_ok=True)
     for plant in SITL_PLANTS:
         for sc in SITL_SCENARIOS:
-            for seed in SITL_SEEDS:
+            for seed in seeds:
                 run = d / f"{plant}-{sc}-s{seed}"
                 if (run / "bridge-cycles.csv").exists():
                     continue
@@ -140,14 +140,14 @@ def sitl_bench_log(plant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return cols["t"], cols["u"], cols["warp"]
 
 
-def sitl_logs(d: Path) -> list[dict]:
+def sitl_logs(d: Path, seeds: tuple[int, ...] = SITL_SEEDS) -> list[dict]:
     out = []
     for plant in SITL_PLANTS:
         t, u, w = sitl_bench_log(plant)
         out.append({"set": "sitl", "log": f"{plant} open-loop bench", "plant": plant, "t": t, "u": u, "w": w,
                     "others": [], "bench": True})
         for sc in SITL_SCENARIOS:
-            for seed in SITL_SEEDS:
+            for seed in seeds:
                 for wing in ("left", "right"):
                     data = read_log(d / f"{plant}-{sc}-s{seed}" / "bridge-cycles.csv", wing=wing)
                     out.append({"set": "sitl", "log": f"{plant} {sc} s{seed} {wing}", "plant": plant, "t": data.t,
@@ -181,7 +181,11 @@ def main() -> None:
     ap.add_argument("--sitl-dir", help="folder of the SITL runs (recorded there when missing; default a temporary one)")
     ap.add_argument("--realdata", help="folder of the measured logs (default ../shared/realdata/tsm-kaist)")
     ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "identify-seeds.json"))
-    ap.add_argument("--versions", default="new,old", help="which code to run: new, old or both (default)")
+    ap.add_argument("--versions", default="new,old",
+                    help="which code to run: new, old, both (default) or none (with --resume and --merge: only the "
+                         "table of figures measured before)")
+    ap.add_argument("--sitl-seeds", default="0,1", help="seeds of the SITL runs (default 0,1)")
+    ap.add_argument("--resume", help="a JSON of an earlier run of this benchmark: its logs are kept, not run again")
     ap.add_argument("--merge", help="a JSON of this benchmark whose runs fill in the versions not run here "
                                     "(the old code's figures measured in an earlier run of the same logs)")
     args = ap.parse_args()
@@ -191,6 +195,10 @@ def main() -> None:
         versions["new"] = current
     if args.baseline and "old" in args.versions.split(","):
         versions["old"] = BI.load_baseline(args.baseline)
+    sitl_seeds = tuple(int(x) for x in args.sitl_seeds.split(","))
+    done = {}
+    if args.resume and Path(args.resume).exists():
+        done = {(r["set"], r["log"]): r for r in json.loads(Path(args.resume).read_text())["logs"]}
     merged = {}
     if args.merge:
         prev = json.loads(Path(args.merge).read_text())
@@ -200,8 +208,11 @@ def main() -> None:
     for v in versions.values():
         v.identify(t, u, 5 + 2.5 * np.sin(2 * np.pi * t - 0.3), maxiter=2, polish_evals=20)
     old_seeds = {"bench": args.old_seeds_bench, "sitl": args.old_seeds_sitl, "realdata": args.old_seeds_realdata}
-    head = (f"{os.cpu_count()} CPUs; load average at start {os.getloadavg()[0]:.1f}; current code {args.seeds} seeds, "
-            f"old code ({args.baseline or 'none'}) seeds per set {old_seeds}")
+    head = (f"{os.cpu_count()} CPUs; load average at start {os.getloadavg()[0]:.1f}; "
+            f"running {list(versions) or 'none'}; current code {args.seeds} seeds "
+            f"({args.seeds_bench or args.seeds} on bench logs), old code "
+            f"({args.baseline or 'none'}) seeds per set {old_seeds}; kept from {args.resume or '-'}, the versions not "
+            f"run filled in from {args.merge or '-'}")
     print(head, flush=True)
     out = {"format": "warpbridge-bench-identify-seeds/1", "baseline": args.baseline, "seeds": args.seeds,
            "old_seeds": old_seeds, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "logs": []}
@@ -210,8 +221,8 @@ def main() -> None:
     for s in sets:
         if s == "sitl":
             d = Path(args.sitl_dir) if args.sitl_dir else Path(tempfile.mkdtemp(prefix="wb-sitl-"))
-            record_sitl(d)
-            logs += sitl_logs(d)
+            record_sitl(d, sitl_seeds)
+            logs += sitl_logs(d, sitl_seeds)
         elif s == "bench":
             logs += bench_logs()
         elif s == "realdata":
@@ -220,10 +231,19 @@ def main() -> None:
                 logs += realdata_logs(d)
             else:
                 print(f"no measured data at {d}: skipped")
-    rows = []
     shown = list(versions) + [k for k in ("new", "old") if k not in versions and merged]
     for lg in logs:
         t, u, w = lg["t"], lg["u"], lg["w"]
+        if (lg["set"], lg["log"]) in done:
+            rec = done[(lg["set"], lg["log"])] | {"resumed_from": args.resume}
+            for key, runs in merged.get((lg["set"], lg["log"]), {}).get("runs", {}).items():
+                if key not in rec["runs"]:
+                    rec["runs"][key] = runs
+                    rec.setdefault("merged_from", {})[key] = args.merge
+            summarise(rec, bool(lg["others"]))
+            out["logs"].append(rec)
+            print(f"{lg['set']}  {lg['log']}  (kept from {args.resume})", flush=True)
+            continue
         line_held, line_oth = line_other(t, u, w, lg["others"])
         rec = {"set": lg["set"], "log": lg["log"], "plant": lg["plant"], "samples": int(t.size),
                "seconds_of_log": float(t[-1] - t[0]), "noise_deg": noise_floor(w), "line_heldout_rms_deg": line_held,
@@ -236,7 +256,7 @@ def main() -> None:
             if key not in versions:
                 rec["runs"][key] = runs
                 rec.setdefault("merged_from", {})[key] = args.merge
-        for seed in range(max(n[k] for k in versions)):
+        for seed in range(max([n[k] for k in versions], default=0)):
             for key, ident in versions.items():  # interleaved: both see the same load
                 if seed < n[key]:
                     try:
@@ -244,22 +264,11 @@ def main() -> None:
                     except ValueError as e:
                         rec["runs"][key].append({"seed": seed, "error": str(e), "heldout_rms_deg": None,
                                                  "train_rms_deg": None, "seconds": None, "other_rms_deg": None})
-        for key in rec["runs"]:
-            rec[key] = summary(rec["runs"][key]) | {
-                "seconds_median": statistics.median([r["seconds"] for r in rec["runs"][key] if r["seconds"]] or [0]),
-                "default_heldout_rms_deg": rec["runs"][key][0]["heldout_rms_deg"] if rec["runs"][key] else None,
-                "other": summary(rec["runs"][key], "other_rms_deg") if lg["others"] else None}
-        if "old" in rec and "new" in rec and rec["old"]["min"] and rec["new"]["default_heldout_rms_deg"] is not None:
-            rec["default_over_old_best"] = rec["new"]["default_heldout_rms_deg"] / rec["old"]["min"]
+        summarise(rec, bool(lg["others"]))
         out["logs"].append(rec)
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=1, default=float))
-        row = [lg["set"], lg["log"], rec["noise_deg"], line_held]
-        for key in shown:
-            s = rec.get(key) or {"min": math.nan, "median": math.nan, "max": math.nan, "seconds_median": math.nan}
-            row += [s["min"], s["median"], s["max"], s["seconds_median"]]
-        row.append(rec.get("default_over_old_best", math.nan))
-        rows.append(row)
+        row = table_row(rec, shown)
         print("  ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in row), flush=True)
     head = ["set", "log", "noise", "line held-out"]
     for key in shown:
@@ -267,11 +276,32 @@ def main() -> None:
     head.append("new seed 0 / old best")
     print()
     print("Held-out RMS (deg) of the log's last quarter over seeds; s/fit: median wall seconds per fit")
-    print(table(rows, head))
+    print(table([table_row(rec, shown) for rec in out["logs"]], head))
     print_summary(out, shown)
     out["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     Path(args.json).write_text(json.dumps(out, indent=1, default=float))
     print(f"load average at end {os.getloadavg()[0]:.1f}; wrote {args.json}")
+
+
+def summarise(rec: dict, others: bool) -> None:
+    """Each version's figures over its seeds, and the default run's over the old code's best."""
+    for key in rec["runs"]:
+        runs = rec["runs"][key]
+        rec[key] = summary(runs) | {
+            "seconds_median": statistics.median([r["seconds"] for r in runs if r["seconds"]] or [0]),
+            "default_heldout_rms_deg": runs[0]["heldout_rms_deg"] if runs else None,
+            "other": summary(runs, "other_rms_deg") if others else None}
+    if "old" in rec and "new" in rec and rec["old"]["min"] and rec["new"]["default_heldout_rms_deg"] is not None:
+        rec["default_over_old_best"] = rec["new"]["default_heldout_rms_deg"] / rec["old"]["min"]
+
+
+def table_row(rec: dict, shown: list[str]) -> list:
+    row = [rec["set"], rec["log"], rec["noise_deg"], rec["line_heldout_rms_deg"]]
+    for key in shown:
+        s = rec.get(key) or {"min": math.nan, "median": math.nan, "max": math.nan, "seconds_median": math.nan}
+        row += [s["min"], s["median"], s["max"], s["seconds_median"]]
+    row.append(rec.get("default_over_old_best", math.nan))
+    return row
 
 
 def print_summary(out: dict, versions: list[str]) -> None:
@@ -280,13 +310,14 @@ def print_summary(out: dict, versions: list[str]) -> None:
         if not recs:
             continue
         for key in versions:
-            if not all(key in r for r in recs):
+            have = [r for r in recs if (r.get(key) or {}).get("median") is not None]
+            if not have:
                 continue
-            spreads = [r[key]["spread"] for r in recs if r[key]["spread"]]
-            secs = [r[key]["seconds_median"] for r in recs]
-            beat = sum(1 for r in recs if r[key]["median"] is not None and r[key]["median"] < r["line_heldout_rms_deg"])
+            spreads = [r[key]["spread"] for r in have]
+            secs = [r[key]["seconds_median"] for r in have]
+            beat = sum(1 for r in have if r[key]["median"] < r["line_heldout_rms_deg"])
             print(f"{s} {key}: seed spread (max/min held-out) median {statistics.median(spreads):.4f}, "
-                  f"max {max(spreads):.4f}; beats the line (median seed) on {beat}/{len(recs)}; "
+                  f"max {max(spreads):.4f}; beats the line (median seed) on {beat}/{len(have)}; "
                   f"s/fit median {statistics.median(secs):.2f}")
         ratios = [r["default_over_old_best"] for r in recs if "default_over_old_best" in r]
         if ratios:
@@ -295,15 +326,17 @@ def print_summary(out: dict, versions: list[str]) -> None:
                   f"{max(ratios):.3f}; within 1.05x on {within}/{len(ratios)}")
         if s == "sitl":
             for plant in SITL_PLANTS:
-                bench = [r for r in recs if r["plant"] == plant and r["open_loop_bench"]]
-                closed = [r for r in recs if r["plant"] == plant and not r["open_loop_bench"]]
-                if bench and closed and "new" in bench[0] and bench[0]["new"]["median"]:
-                    ratio = [r["new"]["default_heldout_rms_deg"] / bench[0]["new"]["median"] for r in closed
-                             if r["new"]["default_heldout_rms_deg"] is not None]
-                    print(f"sitl {plant}: closed-loop held-out / open-loop bench held-out (new, seed 0): median "
-                          f"{statistics.median(ratio):.2f}, max {max(ratio):.2f}; within 1.5x on "
+                for key in versions:
+                    bench = [r for r in recs if r["plant"] == plant and r["open_loop_bench"]
+                             and (r.get(key) or {}).get("median")]
+                    closed = [r for r in recs if r["plant"] == plant and not r["open_loop_bench"]
+                              and (r.get(key) or {}).get("default_heldout_rms_deg") is not None]
+                    if not bench or not closed:
+                        continue
+                    ratio = [r[key]["default_heldout_rms_deg"] / bench[0][key]["median"] for r in closed]
+                    print(f"sitl {plant} {key}: closed-loop held-out (seed 0) / open-loop bench held-out (median "
+                          f"seed): median {statistics.median(ratio):.2f}, max {max(ratio):.2f}; within 1.5x on "
                           f"{sum(1 for x in ratio if x <= 1.5)}/{len(ratio)}")
-
 
 if __name__ == "__main__":
     main()
