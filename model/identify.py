@@ -16,16 +16,26 @@ fixed by the warp and the shape parameters (A, n, b). So:
    scramble, 0 the default), the paper's shape and the prior's
    (``model.ident_design``).
 4. ``linear solve``: for each trial shape the state is integrated once over the
-   measured warp (jitter removed) and (a1, a2, a3, az) are solved exactly by
-   least squares on the input-side error (separable least squares, variable
-   projection); the straight line and the quadratic without hysteresis are
-   inside every solve (az = 0).
+   measured warp and (a1, a2, a3, az) are solved exactly by least squares on the
+   input-side error (separable least squares, variable projection); the straight
+   line and the quadratic without hysteresis are inside every solve (az = 0). The
+   warp's jitter is removed first (every noise reversal would be a real reversal
+   of the model): the log is cut into runs at the input's real turns (a turn of
+   the input inside the model's dead zone moves the warp by less than its noise)
+   and, for half of the starts, at the warp's own (a closed loop's command
+   reacts to the sensor's noise, so its turns are not the warp's), and in each
+   run the warp is replaced by its least-squares monotone fit.
 5. ``local refine``: the distinct best shapes, with the straight line and the
    quadratic backbone, are scored on the forward output error (warp simulated
    from the logged tendon input, every stretch started from the state its own
    first samples imply) and the best few refined by Levenberg-Marquardt on the
    per-sample forward residuals (``model.ident_path``), the best of them again on
-   a larger part of the training data. A result at the exponent's upper limit
+   a larger part of the training data; the best start without hysteresis is
+   always among those refined. A log with more reversals than a fit needs is
+   scored on evenly spread stretches; a noisy input's reversals are counted
+   above its noise for that (a closed-loop log's jitter would otherwise cut the
+   stretches to a few samples each), while every reversal inside a stretch,
+   jitter's included, is simulated as the model sees it. A result at the exponent's upper limit
    (n trades against the saturation levels along a flat ridge) is refined again
    from the next start, the better on training kept.
 6. ``delay``: with ``max_delay_s``, a scan of transport delays in front of the
