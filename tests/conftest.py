@@ -3,23 +3,25 @@
 - ``-n auto`` means two workers, or one per core where there are fewer, for a run of the suite or of a folder
   (``PYTEST_XDIST_AUTO_NUM_WORKERS`` or ``-n N`` say otherwise); a run of a single file or test stays in one
   process, where starting the workers would cost more than they save.
-- Tests that share a module- or class-scoped fixture defined in their own test file (a simulated log and the
-  model identified on it, say) run on one worker, so that the fixture is built once, not once per worker:
-  they get an ``xdist_group`` named after their file.
-- Tests marked ``slow`` are collected first: the scheduler hands the long ones out while there is still
-  short work to balance them with, instead of leaving one of them for the end on a single worker.
-
-Without xdist (``-n 0``, or the plugin absent) the same order holds and the groups are unused marks.
+- A test file that defines a module-, class- or session-scoped fixture (a simulated log and the model identified
+  on it, a built wheel) runs on one worker, so that the fixture is built once, not once per worker; the tests of
+  the other files are handed out one at a time. (xdist's own ``xdist_group`` marks rename the node ids, which
+  pytest 9 no longer allows: the scheduler below groups by file instead.)
+- Tests marked ``slow`` are collected first, with the rest of their file when it is grouped: the scheduler hands
+  the long ones out while there is still short work to balance them with.
 """
 
 from __future__ import annotations
 
 import os
+import re
+from functools import cache
+from pathlib import Path
 
 import pytest
 
-SHARED_SCOPES = ("module", "class")
 MAX_WORKERS = 2  # measured on two cores; tests that run three processes in real time want a core each besides
+SHARED_FIXTURE = re.compile(r"""@pytest\.fixture\(\s*scope\s*=\s*["'](?:module|class|session)["']""")
 
 
 def cores() -> int:
@@ -42,29 +44,39 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
     return n if n > 1 else 0
 
 
-def shares_a_fixture_of_its_file(item: pytest.Item) -> bool:
-    """Whether ``item`` uses a module- or class-scoped fixture defined in its own test file."""
-    info = getattr(item, "_fixtureinfo", None)
-    if info is None:
+@cache
+def shares_fixtures(root: Path, module: str) -> bool:
+    """Whether the test file ``module`` (relative to ``root``) defines a fixture broader than a test."""
+    try:
+        return SHARED_FIXTURE.search((root / module).read_text(encoding="utf-8")) is not None
+    except OSError:
         return False
-    module = item.nodeid.split("::", 1)[0]
-    for defs in info.name2fixturedefs.values():
-        fixture = defs[-1]
-        if fixture.scope in SHARED_SCOPES and fixture.baseid.split("::", 1)[0] == module:
-            return True
-    return False
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the xdist_group marks into the node ids
+def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN201 - xdist's scheduler type
+    """For ``--dist loadgroup``: each test its own unit of work, except the files that share a fixture."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    root = config.rootpath
+
+    class SharedFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if shares_fixtures(root, module) else nodeid
+
+    return SharedFixtureScheduling(config, log)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    groups: dict[pytest.Item, str] = {}
-    for item in items:
-        if shares_a_fixture_of_its_file(item):
-            groups[item] = item.nodeid.split("::", 1)[0]
-            item.add_marker(pytest.mark.xdist_group(groups[item]))
-    slow_groups = {groups[item] for item in items if item in groups and item.get_closest_marker("slow")}
+    root = config.rootpath
+    slow_files = {item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow")}
 
-    def later(item: pytest.Item) -> bool:  # a group moves as one, so that its fixture is still built once
-        return item.get_closest_marker("slow") is None and groups.get(item) not in slow_groups
+    def later(item: pytest.Item) -> bool:  # a grouped file moves as one, so that its fixtures are built once
+        module = item.nodeid.split("::", 1)[0]
+        if shares_fixtures(root, module):
+            return module not in slow_files
+        return item.get_closest_marker("slow") is None
 
     items.sort(key=later)  # stable: slow first, otherwise as collected
