@@ -137,6 +137,9 @@ FOLD_KEEP = 1.05  # the refinement without a fold is kept when its training RMS 
 DELAY_GRID_S = (0.005, 0.01, 0.02, 0.03, 0.045, 0.065, 0.09, 0.12, 0.16)  # transport delays the scan tries (s)
 DELAY_SCAN_ITER = 6  # refinement steps at each delay of the scan
 DELAY_GAIN = 0.02  # a delay is kept only when it lowers the training cost by this share of the no-delay cost
+MAX_REFINED = 6  # ... or more, up to this many, until two of them agree within AGREE
+AGREE = 0.01
+RANKED_PER_POPSIZE = 6  # distinct design starts ranked on the forward error, per unit of ``popsize``
 REFINED_STARTS = 2  # starts refined on the search's path (the best by forward cost) ...
 SEARCH_ITER = 40  # ... for at most this many steps each; the best again on the polish's path
 MIN_TURNING_POINTS = 4  # reversals (5 % of the span or more) the training part needs to pin the loop down
@@ -431,23 +434,48 @@ class Refiner:
         order = [int(i) for i in np.argsort(costs) if np.isfinite(costs[i]) and costs[i] < FOLD_PENALTY]
         if not order:
             order = [int(np.argmin(costs))]
-        chosen = order[:n_refine]
+        # the best starts with hysteresis, however well a line starts (a wide loop's starts may all begin worse),
+        # in order until two results agree within ``AGREE`` (at least ``n_refine``, at most ``MAX_REFINED``); then
+        # the best start without hysteresis
+        hyst = [i for i in order if labels[i] not in SIMPLE_STARTS] or order
         simple = [i for i in order if labels[i] in SIMPLE_STARTS]
-        if simple and simple[0] not in chosen:  # the best model without hysteresis is always refined as well
-            chosen.append(simple[0])
         out = []
-        for i in chosen:
-            r = refine(self.search, thetas[i], self.lo, self.hi, self.max_iter, self._cb, tol=FIT_TOL_Z)
-            out.append((r.cost, r.theta, labels[i]))
-            self.trace.starts.append(labels[i])
-            self.trace.start_costs.append(float(costs[i]))
-            self.trace.best.append(float(r.cost))
-        out.sort(key=lambda x: x[0])
+        for k, i in enumerate(hyst[:max(n_refine, MAX_REFINED)]):
+            out.append(self._refine_one(thetas[i], labels[i], costs[i]))
+            fs = sorted(x[0] for x in out)
+            if k + 1 >= n_refine and len(fs) > 1 and fs[1] <= (1.0 + AGREE) * fs[0]:
+                break
+        if simple and simple[0] not in hyst:
+            out.append(self._refine_one(thetas[simple[0]], labels[simple[0]], costs[simple[0]]))
         fs = np.array([x[0] for x in out])
         self.trace.spread.append(float(np.std(fs) / max(abs(float(np.mean(fs))), 1e-300)))
-        cost, theta, label = out[0]
+        # the search's path starts every stretch afresh; the model must also run free over the whole training
+        # part: the refined results are ranked by that (their training RMS), the search's cost breaking ties
+        whole = [self.train_rms(x[1]) for x in out]
+        best = min(range(len(out)), key=lambda j: (whole[j], out[j][0]))
+        cost, theta, label = out[best]
         r = refine(self.polish_obj, theta, self.lo, self.hi, self.max_iter, self._polish_cb)
         return r.theta, r.cost, label
+
+    def train_rms(self, theta: np.ndarray) -> float:
+        """Training RMS (normalised warp) of the model run free over the whole training part of its input."""
+        params = theta_to_normalised(theta, self.data.norm.c)
+        n_end = self.data.n_train_end
+        x, w = self.x_hat[:n_end], self.data.w_hat[:n_end]
+        try:
+            z0 = estimate_z0(params, x, w)
+            pred = forward(params, x, z0=z0)[0]
+        except ValueError:
+            return math.inf
+        v = float(np.sqrt(np.mean((pred - w) ** 2)))
+        return v if math.isfinite(v) else math.inf
+
+    def _refine_one(self, theta: np.ndarray, label: str, cost: float) -> tuple[float, np.ndarray, str]:
+        r = refine(self.search, theta, self.lo, self.hi, self.max_iter, self._cb, tol=FIT_TOL_Z)
+        self.trace.starts.append(label)
+        self.trace.start_costs.append(float(cost))
+        self.trace.best.append(float(r.cost))
+        return r.cost, r.theta, label
 
     def _polish_cb(self, i: int) -> None:
         self.trace.polish_iterations += 1
@@ -664,7 +692,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     if progress:
         progress("design", 0, 1)
     S, labels = start_design(data, seed, prior)
-    starts = linear_solve(data, S, labels, max(1, popsize))
+    starts = linear_solve(data, S, labels, max(1, RANKED_PER_POPSIZE * popsize))
     trace.design_size = int(S.shape[0])
     if progress:
         progress("design", 1, 1)
