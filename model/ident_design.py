@@ -20,7 +20,7 @@ error.
 The warp path the state is integrated over is the measured warp with its
 jitter removed: every reversal smaller than a few noise deviations would
 otherwise be a real reversal of the model, and its state would jump by the
-loop's width (``signals.monotone_between_turns``). A state that diverges or
+loop's width (``monotone.monotone_between_turns``). A state that diverges or
 needs more sub-steps than its budget marks its trial shape as no model.
 """
 
@@ -37,7 +37,8 @@ from scipy.stats import qmc
 from warpbridge.model import kernels as K
 from warpbridge.model._jit import njit, prange
 from warpbridge.model.ident_space import thetas_to_rows
-from warpbridge.model.signals import monotone_between_turns, noise_floor, reversal_indices, turning_indices
+from warpbridge.model.monotone import monotone_between_turns
+from warpbridge.model.signals import noise_floor, reversal_indices, turning_indices
 
 DESIGN_SEED = 20170101  # the Sobol' scramble of the default design (fixed: the answer does not depend on luck)
 DESIGN_LOG2 = 9  # 2^9 trial shapes

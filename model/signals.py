@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import isotonic_regression
 
 NOISE_TRIM = 4.0  # second differences past this many robust deviations are signal (a reversal's kink), not noise
 NOISE_TRIM_PASSES = 2
@@ -114,23 +113,6 @@ def turning_points(u: np.ndarray, frac: float = 0.05) -> int:
     u = np.asarray(u, dtype=np.float64)
     thr = frac * float(np.ptp(u)) if u.size else 0.0
     return int(turning_indices(u, thr).size)
-
-
-def monotone_between_turns(x: np.ndarray, threshold: float, fit: np.ndarray | None = None) -> np.ndarray:
-    """x with its jitter removed: between consecutive turning points of x (``turning_indices``) the
-    least-squares monotone fit (isotonic regression, rising or falling as the run does) of ``fit`` (default
-    x), so that the only reversals left are real ones and a plateau sits at its mean."""
-    x = np.asarray(x, dtype=np.float64)
-    y = x if fit is None else np.asarray(fit, dtype=np.float64)
-    out = y.copy()
-    turns = turning_indices(x, threshold)
-    edges = np.concatenate([[0], turns, [x.size]]).astype(np.int64)
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        if b - a < 2:
-            continue
-        rising = x[min(b, x.size - 1)] >= x[a]
-        out[a:b] = isotonic_regression(y[a:b], increasing=bool(rising)).x
-    return out
 
 
 def linear_fit(u: np.ndarray, w: np.ndarray, train: np.ndarray) -> tuple[float, float]:
