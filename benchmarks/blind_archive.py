@@ -9,7 +9,7 @@
 
 ``bench_diagnose_blind.py`` keeps each case's result in a cache folder named by its settings and the hash of
 the diagnosis's sources. A cache does not travel with a checkout, and computing seeds 0-1 again takes hours;
-so the results the README's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
+so the results docs/results.md's tables come from are kept in ``benchmarks/results/`` (about 400 kB for seeds 0-1's
 468 cases, compressed). ``pack`` writes the cached folder of ``--sources`` (default: this code's) to
 ``benchmarks/results/<folder>.jsonl.gz``, every case of ``--seed`` required (a probe run of the
 benchmark's ``--plants``, ``--singles-only``, ``--magnitude``, ``--rate`` and ``--duration`` is packed with
@@ -23,7 +23,7 @@ on one core).
 result differs from the archived one in a verdict (a reproducibility check after a run of the same code). The
 archive is the benchmark's output, not an input of it: a run never reads it, and computes every case it has no
 cached result for (a bench model is found by its bench log's key, which names the identification's sources,
-so an unpacked one is only used by the code that identified it). Keep the archives the README cites; git
+so an unpacked one is only used by the code that identified it). Keep the archives docs/results.md cites; git
 keeps the older ones.
 """
 

@@ -11,7 +11,7 @@ logs of the same rig from the same process (the same plant, input generator and 
 draws), identifies each as the blind benchmark does (``identify --max-delay 0.16``, the model-error model
 learned on the log), and diagnoses every field case of the rig (the blind benchmark's own logs: no effect,
 each single effect, its random pairs) with each model, under the shipped default decision. Beside the other
-draws it prints what the blind benchmark scores (the benchmark's own draw, "draw 0") and what the README
+draws it prints what the blind benchmark scores (the benchmark's own draw, "draw 0") and what docs/identify.md
 advises for such rigs: the benchmark's model with draw 1 as ``identify --check`` (a second bench log of the
 same kind of input), unless ``--no-check``.
 

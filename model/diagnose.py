@@ -146,7 +146,7 @@ class Decision:
     of the admitted candidates the held-out test cannot tell apart the one with the fewest parameters is
     named. The benchmark chooses these on plant families other
     than the one it scores (leave-one-family-out) and prints each fold's choice; the defaults are the
-    decision four of its five folds chose when they were set (the README gives the latest run's choices;
+    decision four of its five folds chose when they were set (docs/results.md gives the latest run's choices;
     none has chosen parsimony or ``min_total``)."""
 
     alpha: float = 0.05

@@ -4,7 +4,7 @@ The simulated wing is the physics-based tendon-sheath plant (``sitl.sheath``), n
 model's own class. On the bench (``BENCH``, the SITL's default sheath rig) it is driven with a
 low-passed random tendon command and logged through the flex sensor's noise and ADC
 (``sitl.wing.bench_log``); ``warpbridge identify`` fits the bridge's model to that log, as a user
-does (README, "Real hardware", step 4). The wing then flown is the same sheath re-rigged
+does (docs/identify.md). The wing then flown is the same sheath re-rigged
 (``rigged``): pre-tension and friction changed, as after folding and unfolding the wing, so the
 identified model is off twice over: in its form and in its parameters.
 """
