@@ -76,6 +76,7 @@ import numpy as np
 from warpbridge.model import ident_design as design
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.effects import delayed
+from warpbridge.model.ident_global import global_search
 from warpbridge.model.ident_path import (
     BUDGET_PER_POINT,
     BUDGET_PER_REVERSAL,
@@ -146,6 +147,10 @@ MIN_TURNING_POINTS = 4  # reversals (5 % of the span or more) the training part 
 NARROW_NOISES = 20.0  # a training warp band narrower than this many noise deviations is narrow
 SIMPLE_STARTS = ("line", "quadratic")  # the starts without hysteresis, inside the class
 LOOP_FLOOR = 1e-3  # az (normalised) of a start without hysteresis: a loop too narrow to matter
+ESCALATE_NOISES = 5.0  # ... or when the first result's training RMS is above this many noise deviations
+GLOBAL_SEEDED = 10  # the design's best starts placed in its first population, beside the refined results
+POPSIZE_GLOBAL = 110  # its population (ten per parameter of a two-sided wing)
+MAXITER_GLOBAL = 150  # generations of the escalation's global search at most (``model.ident_global``)
 LINE_ZSAT = -3.5  # log10 of the state's saturation (normalised) of the straight-line and quadratic starts
 
 
@@ -384,6 +389,10 @@ class SearchTrace:
     line_restart: bool = False  # the result fitted the training part worse than the line: refined from it again
     line_train_rms: float = math.nan  # the best straight line's training RMS (deg)
     kept_start: str = ""
+    global_search: bool = False  # the refined design starts disagreed: a global search ran (``model.ident_global``)
+    global_kept: bool = False  # its refined result ran free over the training part better and was kept
+    global_generations: int = 0
+    global_train_rms: tuple[float, float] | None = None  # training RMS (deg) from the design and from the search
 
 
 class Refiner:
@@ -405,6 +414,8 @@ class Refiner:
         self.progress = progress
         self.stage = stage
         self.lo, self.hi = data.bounds
+        self.refined: list[tuple[float, np.ndarray, str]] = []  # (search cost, theta, label) of each refinement
+        self.agreed = False  # two refined results agreed within ``AGREE``
 
     @property
     def polish_obj(self) -> Objective:
@@ -444,9 +455,11 @@ class Refiner:
             out.append(self._refine_one(thetas[i], labels[i], costs[i]))
             fs = sorted(x[0] for x in out)
             if k + 1 >= n_refine and len(fs) > 1 and fs[1] <= (1.0 + AGREE) * fs[0]:
+                self.agreed = True
                 break
         if simple and simple[0] not in hyst:
             out.append(self._refine_one(thetas[simple[0]], labels[simple[0]], costs[simple[0]]))
+        self.refined = out
         fs = np.array([x[0] for x in out])
         self.trace.spread.append(float(np.std(fs) / max(abs(float(np.mean(fs))), 1e-300)))
         # the search's path starts every stretch afresh; the model must also run free over the whole training
@@ -593,7 +606,8 @@ class IdentResult:
                   "fold_train_rms_deg": list(self.trace.fold_train_rms or ())}
         if self.trace is not None:
             d |= {"design_size": self.trace.design_size, "start_kept": self.trace.kept_start,
-                  "line_restart": self.trace.line_restart}
+                  "line_restart": self.trace.line_restart, "global_search": self.trace.global_search,
+                  "global_search_kept": self.trace.global_kept}
         if self.excitation is not None:
             d["excitation"] = self.excitation.to_dict()
         if self.uncertainty is not None:
@@ -697,11 +711,13 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     if progress:
         progress("design", 1, 1)
     calls = [starts.evaluations]
+    refiners: list[Refiner] = []
 
     def search(thetas: np.ndarray, names: list[str], fold, stage: str, n_refine: int = REFINED_STARTS,
                ) -> tuple[np.ndarray, float]:
         """Steps 5-6 from these starts: (theta, delay)."""
         ref = Refiner(data, data.u_hat, max_fit_points, fold, trace, max_iter, progress, stage)
+        refiners.append(ref)
         theta, cost, label = ref.run(thetas, names, n_refine)
         trace.kept_start = label
         calls[0] += ref.calls
@@ -722,6 +738,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         return theta, delay
 
     best = evaluate(data, *search(starts.thetas, starts.labels, None, "refine"))
+    first = refiners[-1]
     if at_exponent_edge(best.theta, lo, hi, EDGE_FRAC) and trace.spread[-1] > EDGE_AGREE:
         # the exponent n trades against the saturation levels along a long, flat ridge, and a refinement can
         # walk up it to the box's upper limit; unless the refined starts all agree there (then the data put it
@@ -736,6 +753,8 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if again.train_rms < best.train_rms:
             trace.restart_kept = True
             best = again
+    if not first.agreed or best.train_rms > ESCALATE_NOISES * data.noise:
+        best = escalate(data, best, first, starts, seed, trace, search, progress)
     w_lo, w_hi = working_range(data.w, data.two_sided)
     fold_hat = (w_lo / data.norm.ws, w_hi / data.norm.ws)
     if fold_depth(best.theta, data.norm.c, *fold_hat)[0] > 0:
@@ -772,6 +791,38 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         support=support_check(data.t, data.u, data.w, best.w_pred, data.train_mask, data.held_mask, data.noise),
         delay_s=best.delay, travel_mm=central_range(data.u), uncertainty=unc, excitation=exc,
         linear_train_rms=trace.line_train_rms, seed=seed)
+
+
+def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, seed: int, trace: SearchTrace,
+             search, progress) -> Candidate:
+    """Step 5's escalation: no two refined design starts agreed, or the result fits far above the noise
+    floor, so the design may have missed the best basin. A global search (``model.ident_global``, seed derived
+    from the design's) over the refinement's objective, its first population holding the refined results and
+    the design's best starts; its best members are refined like the design's; the result that runs free over the
+    training part better is kept."""
+    lo, hi = data.bounds
+    refined = sorted(first.refined, key=lambda x: x[0])
+    seeded = np.vstack([np.array([x[1] for x in refined]).reshape(-1, lo.size), starts.thetas[:GLOBAL_SEEDED]])
+    log.info("no two refined starts agree, or the fit is far above the noise floor (training RMS %.3g deg, noise "
+             "%.3g): a global search (differential evolution) from the refined starts", best.train_rms, data.noise)
+    trace.global_search = True
+
+    def cb(i: int) -> None:
+        if progress:
+            progress("global", min(i, MAXITER_GLOBAL), MAXITER_GLOBAL)
+
+    g = global_search(first.search, lo, hi, seeded, seed, popsize=POPSIZE_GLOBAL, maxiter=MAXITER_GLOBAL,
+                      callback=cb)
+    trace.global_generations = g.generations
+    th, d = search(g.thetas, ["global"] * len(g.thetas), None, "global")
+    cand = evaluate(data, th, d)
+    log.info("global search: training RMS %.4g deg against %.4g deg from the design", cand.train_rms, best.train_rms)
+    trace.global_train_rms = (best.train_rms, cand.train_rms)
+    if cand.train_rms < best.train_rms:
+        trace.global_kept = True
+        trace.kept_start = "global"
+        return cand
+    return best
 
 
 def line_train_rms(data: LogData) -> float:
