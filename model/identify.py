@@ -37,7 +37,13 @@ fixed by the warp and the shape parameters (A, n, b). So:
    stretches to a few samples each), while every reversal inside a stretch,
    jitter's included, is simulated as the model sees it. A result at the exponent's upper limit
    (n trades against the saturation levels along a flat ridge) is refined again
-   from the next start, the better on training kept.
+   from the next start, the better on training kept. When no two refined starts
+   agree, or the result fits far above the noise floor (a wide two-sided loop
+   whose basin the design can miss), the search escalates: a differential
+   evolution with a fixed seed derived from the design's, seeded with the refined
+   results and the design's best starts (``model.ident_global``), its best
+   members refined the same way; the result that runs free over the training part
+   best is kept (never chosen by held-out data).
 6. ``delay``: with ``max_delay_s``, a scan of transport delays in front of the
    model (a short refinement each, from the best model so far) and a final
    refinement at the best; kept only when it lowers the training cost by
@@ -60,7 +66,7 @@ fixed by the warp and the shape parameters (A, n, b). So:
 
 The answer does not depend on luck: the design is fixed and the refinements are
 deterministic. Everything here is pure numerics; progress is reported through a
-callback (stages "design", "refine", "refine again", "refine without a fold",
+callback (stages "design", "refine", "refine again", "global", "refine without a fold",
 "delay", "line").
 """
 
