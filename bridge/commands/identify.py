@@ -96,6 +96,7 @@ class Progress:
             return
         label = {"design": "start design (linear solve per trial shape)", "refine": "refinement (Levenberg-Marquardt)",
                  "refine again": "refinement again, from the next starts",
+                 "global": "global search (differential evolution), the starts disagreeing",
                  "refine without a fold": "refinement again, the backbone kept from folding",
                  "line": "refinement again, from the straight line", "polish": "refinement on more of the log",
                  "delay": "transport delay scan"}.get(stage, stage)
