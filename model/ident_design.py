@@ -222,15 +222,19 @@ class InputSide:
         self.evaluations += P.shape[0]
         return Z, ok
 
-    def solve(self, S: np.ndarray) -> LinearSolve:
+    def _projected(self, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ok, weighted states, their part orthogonal to the backbone, its product with the input's, az >= 0)."""
         Z, ok = self.states(S)
         Zb = Z * self.sw[None, :]
         rz = Zb - (Zb @ self.Q) @ self.Q.T
         zz = np.einsum("ij,ij->i", rz, rz)
         zu = rz @ self.ru
         with np.errstate(divide="ignore", invalid="ignore"):
-            az = np.where(zz > 0, zu / zz, 0.0)
-        az = np.where(ok & (az > 0), az, 0.0)
+            az = np.where(ok & (zz > 0), np.maximum(zu / zz, 0.0), 0.0)
+        return ok, Zb, rz, zu, az
+
+    def solve(self, S: np.ndarray) -> LinearSolve:
+        ok, Zb, _, zu, az = self._projected(S)
         cost = (float(self.ru @ self.ru) - az * zu) / self.m
         cost = np.where(ok, cost, np.inf)
         rhs = (self.ub[None, :] - az[:, None] * Zb) @ self.Q
@@ -239,13 +243,7 @@ class InputSide:
 
     def residuals(self, S: np.ndarray) -> np.ndarray:
         """Weighted input-side residuals of each shape with its linear coefficients solved (rows)."""
-        Z, ok = self.states(S)
-        Zb = Z * self.sw[None, :]
-        rz = Zb - (Zb @ self.Q) @ self.Q.T
-        zz = np.einsum("ij,ij->i", rz, rz)
-        zu = rz @ self.ru
-        with np.errstate(divide="ignore", invalid="ignore"):
-            az = np.where(ok & (zz > 0), np.maximum(zu / zz, 0.0), 0.0)
+        ok, _, rz, _, az = self._projected(S)
         R = self.ru[None, :] - az[:, None] * rz
         R[~ok] = 10.0 * np.sqrt(self.m) * max(float(np.std(self.ub)), 1e-12)
         return R
