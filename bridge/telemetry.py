@@ -8,6 +8,10 @@ condition raised before the FC is known is reported as soon as it is; a key that
 flaps is re-sent at most every ``key_holdoff_s``),
 an unkeyed one is rate limited (burst of 5, then one a second).
 
+To PX4 the named values go one at a time, at least ``PX4_NAMED_GAP_S`` apart, the longest waiting
+first: PX4 publishes each as ``debug_key_value``, a topic that holds one message, and its logger takes
+one per cycle (3.5 ms), so of a burst only the last would reach the ``.ulg``.
+
 Names sent (at most 10 characters; shown by MAVProxy, Mission Planner's Quick tab
 and QGroundControl's MAVLink Inspector, logged by ArduPilot as NVAL):
 
@@ -70,6 +74,7 @@ MODE_CODES = {"open": 0.0, "pi": 1.0, "ff": 2.0, "ff+pi": 3.0, "failsafe": -1.0}
 _STATUS_BURST = 5.0
 _STATUS_PER_S = 1.0
 SEV_ERROR, SEV_WARNING = 3, 4  # MAV_SEVERITY_ERROR, MAV_SEVERITY_WARNING
+PX4_NAMED_GAP_S = 0.004  # PX4's logger keeps one debug_key_value per cycle of 3.5 ms
 
 
 def _level(severity: int) -> int:
@@ -97,6 +102,7 @@ class Telemetry:
         self.clock = clock
         self._last_sent: dict[str, float] = {}
         self._pending: dict[str, float] = {}
+        self._last_any = -math.inf
         self._active_keys: set[str] = set()
         self._key_sent: dict[str, float] = {}
         self._key_logged: set[str] = set()
@@ -113,20 +119,32 @@ class Telemetry:
         if self.rate_hz <= 0:
             return
         self._pending[name] = float(value)
-        self._flush(name, self.clock())
+        if not self._one_at_a_time():
+            self._flush(name, self.clock())
+        elif self.clock() - self._last_any >= PX4_NAMED_GAP_S:
+            self.poll()  # the longest waiting name goes first
 
     def poll(self) -> None:
         """Send the values held back whose name is due again."""
         now = self.clock()
-        for name in list(self._pending):
+        names = list(self._pending)
+        if self._one_at_a_time():
+            names.sort(key=lambda n: self._last_sent.get(n, -math.inf))
+        for name in names:
             self._flush(name, now)
+
+    def _one_at_a_time(self) -> bool:
+        return getattr(self.link, "autopilot", None) == "px4"
 
     def _flush(self, name: str, now: float) -> None:
         last = self._last_sent.get(name)
         if last is not None and now - last < self.period:
             return
+        if self._one_at_a_time() and now - self._last_any < PX4_NAMED_GAP_S:
+            return
         if self.link.send_named_float(name, self._pending[name]):
             self._last_sent[name] = now
+            self._last_any = now
             del self._pending[name]
 
     # ------------------------------------------------------------------ status texts
