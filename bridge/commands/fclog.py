@@ -577,6 +577,10 @@ class _Unwrap:
 
 # ---------------------------------------------------------------------------------------------- ULog
 
+PX4_ARMED = 2  # vehicle_status.arming_state
+ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*m")
+# PX4 keeps 9 characters of a name (debug_key_value's key ends with its terminating zero)
+_PX4_CUT_NAMES = {"WB_cal_pc": "WB_cal_pct"}
 PX4_NAV_STATES = {0: "MANUAL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO_MISSION", 4: "AUTO_LOITER", 5: "AUTO_RTL",
                   10: "ACRO", 12: "DESCEND", 13: "TERMINATION", 14: "OFFBOARD", 15: "STAB", 17: "AUTO_TAKEOFF",
                   18: "AUTO_LAND", 19: "AUTO_FOLLOW_TARGET", 20: "AUTO_PRECLAND", 21: "ORBIT"}
@@ -609,7 +613,7 @@ def _read_ulog(p: Path, progress: Progress | None) -> FcLog:
         names = np.array([bytes(r).split(b"\0", 1)[0].decode("ascii", "replace") for r in keys])
         for name in np.unique(names):
             sel = names == name
-            named[str(name)] = _series(t[sel], d["value"][sel].astype(np.float64))
+            named[_PX4_CUT_NAMES.get(str(name), str(name))] = _series(t[sel], d["value"][sel].astype(np.float64))
     t_out, a_out = np.zeros(0), np.zeros((0, MAX_CHANNELS))
     if "actuator_outputs" in data:
         d = data["actuator_outputs"].data
@@ -618,6 +622,13 @@ def _read_ulog(p: Path, progress: Progress | None) -> FcLog:
         for i in range(MAX_CHANNELS):
             if f"output[{i}]" in d:
                 a_out[:, i] = d[f"output[{i}]"]
+    if t_out.size and "vehicle_status" in data and int(ulog.initial_parameters.get("COM_PREARM_MODE", 0)) != 2:
+        # disarmed, PX4 holds its outputs at their disarmed values (900 us in SITL, PWM_MAIN_DISn on
+        # hardware), which are not commands: left out, as the bridge leaves them out
+        d = data["vehicle_status"].data
+        k = np.searchsorted(d["timestamp"] * 1e-6, t_out, side="right") - 1
+        armed = (k >= 0) & (d["arming_state"][np.maximum(k, 0)] == PX4_ARMED)
+        a_out[~armed] = np.nan
     roll = rate = airspeed = None
     if "vehicle_attitude" in data:
         d = data["vehicle_attitude"].data
@@ -643,8 +654,8 @@ def _read_ulog(p: Path, progress: Progress | None) -> FcLog:
             fs = d["failsafe"].astype(int)
             for i in np.flatnonzero(np.diff(fs) > 0) + 1:
                 events.append(FcEvent(d["timestamp"][i] * 1e-6, "failsafe", "PX4 failsafe"))
-    for m in ulog.logged_messages:
-        events.append(_text_event(m.timestamp * 1e-6, m.message))
+    for m in ulog.logged_messages:  # PX4 colours some of its texts with terminal escapes
+        events.append(_text_event(m.timestamp * 1e-6, _text(ANSI_ESCAPE.sub("", m.message))))
     for ts, name, value in ulog.changed_parameters:
         if ts > ulog.start_timestamp:
             events.append(FcEvent(ts * 1e-6, "param", f"{name} -> {value:g}"))

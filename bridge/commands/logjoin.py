@@ -206,6 +206,12 @@ def _stamp_offset(cl: CycleLog) -> tuple[float, float, float, float, int] | None
     jumps = np.flatnonzero(np.diff(d) < -2000.0) + 1
     for j in jumps:
         d[j:] += 2**32 * 1e-6
+    t_ref = float(np.median(t))
+    # a drifting clock tilts each window (PX4's SIH runs its clock 0.5 % slow on a busy machine: 48 ms
+    # over 10 s), and a window's upper percentile would then be its early end's: the first estimate of
+    # the drift is taken out before the envelope is found
+    drift0 = float(np.polyfit(t - t_ref, d, 1)[0]) if np.ptp(t) > 0 else 0.0
+    d = d - drift0 * (t - t_ref)
     edges = np.arange(t[0], t[-1] + ENVELOPE_WINDOW_S, ENVELOPE_WINDOW_S)
     mids, envs = [], []
     for a, b in zip(edges[:-1], edges[1:], strict=False):
@@ -213,11 +219,11 @@ def _stamp_offset(cl: CycleLog) -> tuple[float, float, float, float, int] | None
         if sel.sum() >= 5:
             mids.append(float(np.median(t[sel])))
             envs.append(float(np.percentile(d[sel], ENVELOPE_PCT)))
-    t_ref = float(np.median(t))
     if len(mids) >= 3:
         drift, offset = np.polyfit(np.array(mids) - t_ref, np.array(envs), 1)
     else:
         drift, offset = 0.0, float(np.percentile(d, ENVELOPE_PCT))
+    drift += drift0
     # the lag the cross-correlation should find: the mean age of the message each row follows (a row holds
     # its message until the next arrives, so the held rows count too)
     rows = np.flatnonzero(np.isfinite(fc))
