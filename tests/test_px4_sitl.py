@@ -19,11 +19,15 @@ without arming (SIH's airplane of v1.15 does not survive arming in its default H
 
 The checks: ``--check`` finds the aileron on output 3 and names output 4's elevator; the bridge holds
 the wings neutral on the disarmed value, then follows a roll sweep in the right direction; its named
-values, start message and parameter answers reach the ground station through PX4.
+values, start message and parameter answers reach the ground station through PX4. Then a flight (the
+airframe's outputs moved to where SIH 1.15 reads them, see below): takeoff and a roll sweep in Altitude
+mode with the bridge on two simulated wings, PX4's ``.ulg`` (debug topics on) and the bridge's cycle log
+read, joined and reviewed, ``warpbridge identify`` run on the ``.ulg``.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import struct
@@ -34,6 +38,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_process, wait_for
 
@@ -70,12 +75,24 @@ def free_instance() -> int:
 class Px4:
     """The SITL process in its own directory (PX4 keeps parameters.bson, dataman and logs there)."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, rc_params: str = "", logger_topics: str | None = None) -> None:
+        """``rc_params``: commands of a ``px4-rc.params`` (PX4's startup script sources the first one on
+        its PATH after the airframe's defaults, before the logger starts); ``logger_topics``: the lines of
+        an ``etc/logging/logger_topics.txt``, which replaces ``SDLOG_PROFILE``'s topic sets."""
         self.folder = folder
         self.instance = free_instance()
         self.gcs_port, self.bridge_port = 18570 + self.instance, 14540 + self.instance
         etc = Path(PX4).resolve().parents[1] / "etc"
         env = dict(os.environ, PX4_SYS_AUTOSTART="10041", PX4_SIM_MODEL="sihsim_airplane", PX4_SIMULATOR="sihsim")
+        if rc_params:
+            (folder / "px4-rc.params").write_text(rc_params)
+            env["PATH"] = f"{folder}{os.pathsep}{env.get('PATH', '')}"
+        if logger_topics is not None:
+            # PX4 links ./etc to its etc folder unless ./etc is a folder: one of links, and logging/ of our own
+            (folder / "etc" / "logging").mkdir(parents=True)
+            for entry in etc.iterdir():
+                (folder / "etc" / entry.name).symlink_to(entry)
+            (folder / "etc" / "logging" / "logger_topics.txt").write_text(logger_topics)
         self.log_path = folder / "px4.log"
         self.log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen([PX4, "-d", "-i", str(self.instance), str(etc)], cwd=folder, env=env,
@@ -226,3 +243,193 @@ def test_bridge_parks_on_the_disarmed_value_then_follows_a_roll_sweep_through_px
     finally:
         gcs.roll = None
         assert stop_process(proc) == 0, err.read_text()[-3000:]
+
+
+# ---------------------------------------------------------------------------------------------- a flight
+# PX4 1.15's SIH airplane flies once its outputs are where SIH reads them (its airframe file of 1.15 puts
+# the surfaces on outputs 3-6 while SIH takes aileron, elevator, rudder, throttle from outputs 1-4; PX4
+# moved them after 1.15) and with the signs SIH 1.15 applies; with 9 N of thrust (6 N by default) it
+# lifts off the runway, whose ground contact in 1.15 holds the pitch at zero. It takes off in Takeoff
+# mode, then flies Altitude mode with a MANUAL_CONTROL roll sweep at three throttle settings, while the
+# bridge runs ff+pi on the onboard link with two simulated wings behind the emulated Maestro (sensors
+# included). The logger logs from boot with its debug topics on (SDLOG_PROFILE 33: the default set and
+# the debug set, whose debug_key_value is each NAMED_VALUE_FLOAT PX4 receives). ``WARPBRIDGE_FLIGHT_OUT=
+# <dir>`` keeps the .ulg and the cycle log (how tests/data/px4-flight* were made), logging then only the
+# topics the review reads (``SMALL_LOG_TOPICS``) to keep the file small.
+
+FLIGHT_RC_PARAMS = """
+param set PWM_MAIN_FUNC1 201
+param set PWM_MAIN_FUNC2 202
+param set PWM_MAIN_FUNC3 203
+param set PWM_MAIN_FUNC4 101
+param set PWM_MAIN_FUNC5 0
+param set PWM_MAIN_FUNC6 0
+param set CA_SV_CS0_TRQ_R 0.5
+param set CA_SV_CS1_TRQ_P -1
+param set SIH_T_MAX 9
+param set SDLOG_MODE 1
+param set SDLOG_PROFILE 33
+"""
+SMALL_LOG_TOPICS = """debug_key_value
+actuator_outputs 20 0
+vehicle_attitude 20
+vehicle_angular_velocity 20
+airspeed_validated 100
+vehicle_status 500
+"""
+PX4_ALTCTL, PX4_AUTO, PX4_TAKEOFF = 2, 4, 2  # custom main modes; Auto's sub mode Takeoff
+
+
+class FlightGcs(Gcs):
+    """``Gcs`` that flies: arms, sets modes, sends both sticks; watches output 1, altitude, airspeed."""
+
+    def __init__(self, port: int, target: int) -> None:
+        self.throttle = 500  # MANUAL_CONTROL z, 0..1000
+        self.armed = False
+        self.altitude = self.airspeed = 0.0
+        self.servo1: int | None = None
+        super().__init__(port, target)
+
+    def periodic(self, now: float) -> None:
+        roll, self.roll = self.roll, None  # our own MANUAL_CONTROL below carries the throttle too
+        try:
+            super().periodic(now)
+        finally:
+            self.roll = roll
+        if roll is not None and now >= self._next_stick:
+            self._next_stick = now + 0.05
+            self.mav.mav.manual_control_send(self.target, 0, roll, self.throttle, 0, 0)
+
+    def take(self, m: Any) -> None:
+        super().take(m)
+        t = m.get_type()
+        if t == "HEARTBEAT" and m.get_srcComponent() == 1:
+            self.armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        elif t == "SERVO_OUTPUT_RAW" and m.port == 0:
+            self.servo1 = m.servo1_raw
+        elif t == "GLOBAL_POSITION_INT":
+            self.altitude = m.relative_alt / 1000.0
+        elif t == "VFR_HUD":
+            self.airspeed = m.airspeed
+
+    def set_mode(self, main: int, sub: int = 0) -> None:
+        self.mav.mav.command_long_send(self.target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                       mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub, 0, 0, 0, 0)
+
+    def arm(self) -> None:
+        self.mav.mav.command_long_send(self.target, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+
+
+def fly(folder: Path, sweep_s: float = 30.0, small_log: bool = False) -> dict[str, Path]:
+    """One flight; returns the paths of PX4's .ulg and the bridge's cycle log."""
+    from warpbridge.sitl.cmd_sitl import EMULATED_BOARD_TIMEOUT_S, VirtualRig
+    from warpbridge.sitl.lockstep import make_wings
+    from warpbridge.sitl.maestro_emu import MaestroEmulator
+    from warpbridge.sitl.scenarios import Rig, make_scenario
+    from warpbridge.sitl.wing import WingSpec
+
+    ap = Px4(folder, FLIGHT_RC_PARAMS, SMALL_LOG_TOPICS if small_log else None)
+    gcs = bridge = emu = err = None
+    try:
+        ap.wait_started()
+        gcs = FlightGcs(ap.gcs_port, ap.instance + 1)
+        assert wait_for(lambda: gcs.servo1 is not None, 30.0), "no SERVO_OUTPUT_RAW from PX4"
+        # the estimator settles first (about 35 s): the bridge starts then, its cycle log holds the flight
+        assert wait_for(lambda: "Ready for takeoff" in ap.log_path.read_text(errors="replace"), 150.0), \
+            ap.log_path.read_text(errors="replace")[-2000:]
+        # PX4's outputs span 1000..2000 us; a roll-right command raises output 1 (CA_SV_CS0_TRQ_R 0.5): the
+        # rig's left wing gains lift on a rising output, its right wing is the reversed one
+        rig = Rig(pwm_min=1000.0, pwm_max=2000.0)
+        wings = make_wings(make_scenario("steps", 600.0, rig=rig), WingSpec(), w0_deg=rig.bias_deg, grid=True)
+        vrig = VirtualRig(rig, wings)
+        emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
+        pty = emu.start()
+        (folder / "wb.toml").write_text(rig.config_toml(
+            connection=f"udpin:127.0.0.1:{ap.bridge_port}",
+            servo_backend=f"maestro:{pty},timeout={EMULATED_BOARD_TIMEOUT_S:g}", sensor_backend="maestro:",
+            mode="ff+pi", log="cycles.csv", params_file="params.json", servo_rate_hz=50.0))
+        err = open(folder / "bridge.stderr", "wb")  # noqa: SIM115 - closed below
+        bridge = subprocess.Popen([sys.executable, "-m", "warpbridge.bridge.cli", "run", "--config",
+                                   str(folder / "wb.toml")], cwd=folder, stdout=subprocess.DEVNULL, stderr=err)
+        assert wait_for(lambda: gcs.latest("WB_mode") == 3.0, 60.0), (folder / "bridge.stderr").read_text()[-3000:]
+        gcs.roll, gcs.throttle = 0, 500  # sticks centred from the start: PX4 takes Altitude mode with them
+        deadline = time.monotonic() + 30.0
+        while not gcs.armed and time.monotonic() < deadline:
+            gcs.arm()
+            wait_for(lambda: gcs.armed, 2.0)
+        assert gcs.armed, "PX4 did not arm"
+        gcs.set_mode(PX4_AUTO, PX4_TAKEOFF)
+        assert wait_for(lambda: gcs.altitude > 20.0, 60.0), gcs.altitude
+        for _ in range(5):
+            gcs.set_mode(PX4_ALTCTL)
+            if wait_for(lambda: gcs.custom_mode >> 16 == PX4_ALTCTL, 2.0):
+                break
+        assert gcs.custom_mode >> 16 == PX4_ALTCTL, (hex(gcs.custom_mode), ap.log_path.read_text()[-1000:])
+        t0 = time.monotonic()
+        while (el := time.monotonic() - t0) < sweep_s:  # roll stick: sines of growing amplitude, with holds
+            amp = 250 + 450 * min(1.0, (el % (sweep_s / 3)) / (sweep_s / 3) * 1.5)
+            phase = el % 6.0
+            gcs.roll = int(amp * math.sin(2 * math.pi * phase / 3.0)) if phase < 4.5 else 0
+            gcs.throttle = (1000, 600, 250)[min(2, int(3 * el / sweep_s))]  # three airspeeds
+            vrig.tick()
+            time.sleep(0.02)
+        gcs.roll = 0
+        time.sleep(1.0)
+        assert gcs.altitude > 5.0, f"the airplane came down: {gcs.altitude:.1f} m"
+    finally:
+        if bridge is not None:
+            stop_process(bridge)
+        if err is not None:
+            err.close()
+        if emu is not None:
+            emu.stop()
+        if gcs is not None:
+            gcs.close()
+        ap.stop()
+    ulgs = sorted((folder / "log").rglob("*.ulg"))
+    assert ulgs, f"no .ulg in {folder / 'log'}: {ap.log_path.read_text(errors='replace')[-2000:]}"
+    files = {"ulg": ulgs[-1], "cycles": folder / "cycles.csv"}
+    keep = os.environ.get("WARPBRIDGE_FLIGHT_OUT")
+    if keep:
+        import shutil
+
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copy(files["ulg"], Path(keep) / "px4-flight.ulg")
+        shutil.copy(files["cycles"], Path(keep) / "px4-flight-cycles.csv")
+    return files
+
+
+def test_a_px4_flight_reviewed_from_the_ulog_and_the_cycle_log(tmp_path):
+    from warpbridge.bridge.commands.fclog import read_fc_log
+    from warpbridge.bridge.commands.logjoin import read_cycle_log
+    from warpbridge.bridge.commands.review import review
+
+    files = fly(tmp_path, small_log=bool(os.environ.get("WARPBRIDGE_FLIGHT_OUT")))
+    fc = read_fc_log(files["ulg"])
+    # the bridge sends to PX4 one name at a time: its logger, which keeps one debug_key_value per cycle, has them all
+    assert fc.autopilot == "px4" and {"L_sp", "R_sp", "L_warp", "R_warp", "L_cmd", "WB_mode"} <= set(fc.named), \
+        {k: len(s) for k, s in fc.named.items()}
+    assert min(len(s) for s in fc.named.values()) > 0.9 * max(len(s) for s in fc.named.values())
+    assert fc.aileron_channels == [1] and fc.output(1) is not None
+    assert np.ptp(fc.output(1).v) > 200  # the sweep moved the aileron
+    assert fc.airspeed is not None and fc.airspeed.v.max() > 10.0  # it flew
+    assert any(e.text == "mode ALTCTL" for e in fc.events), fc.events
+    cl = read_cycle_log(files["cycles"])
+    rv, flight, al = review(fc, cl)
+    assert al is not None and al.method == "fc_t" and al.check_corr > 0.8, al
+    assert abs(al.residual_s) < 0.05 and al.telemetry_lag_s > 0, al
+    assert rv.tracking["left"]["all"][0].n > 1000
+    # roll right: the left wing gains lift (left - right > 0) and the airplane rolls right
+    cruise = max(rv.roll_authority, key=lambda g: g.n)
+    assert cruise.gain > 0 and cruise.r2 > 0.5, rv.roll_authority
+    out = tmp_path / "review.html"
+    r = subprocess.run([sys.executable, "-m", "warpbridge.bridge.cli", "review", str(files["ulg"]),
+                        str(files["cycles"]), "-o", str(out), "--no-progress"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert out.stat().st_size > 10_000 and out.with_suffix(".json").is_file()
+    r = subprocess.run([sys.executable, "-m", "warpbridge.bridge.cli", "identify", str(files["ulg"]), "--wing",
+                        "left", "-o", str(tmp_path / "left.json"), "--quiet"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert (tmp_path / "left.json").is_file()
