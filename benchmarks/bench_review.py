@@ -11,6 +11,10 @@ plain pass of pymavlink over every message (``recv_match()`` without a type, as 
 reading the cycle log; joining; the analysis; the HTML report. Target (issue 83): under 30 s for a
 10-minute flight, all of it.
 
+The real PX4 SIH flight of tests/data (``.ulg`` and cycle log) is timed the same way, its baseline being
+pyulog reading every topic of the file (``ULog(path)``) against our reader asking for the topics the
+review uses.
+
 Alignment error: the join's residual (the cross-correlation's lag of the bridge's setpoint behind the
 FC's aileron output, less the lag the stamps predict) on the real and the stitched flight; and on the
 synthetic flight of tests/review_synth.py, whose true clock offset is known, the error of each method
@@ -101,6 +105,40 @@ def plain_pass(path: Path) -> int:
     return n
 
 
+def review_times(label: str, log: Path, cycles: Path, baseline, repeats: int, d: Path) -> tuple[list, list]:
+    """One row of the timing table and one of the alignment table for a flight controller log and its cycle log."""
+    from warpbridge.bridge.commands.fclog import read_fc_log
+    from warpbridge.bridge.commands.logjoin import align, read_cycle_log
+    from warpbridge.bridge.commands.review import review
+    from warpbridge.bridge.commands.review_plots import write_html
+
+    t_plain, _ = median_time(lambda: baseline(log), repeats=repeats, warmup=0)
+    t_read, _ = median_time(lambda: read_fc_log(log), repeats=repeats, warmup=0)
+    t_cyc, _ = median_time(lambda: read_cycle_log(cycles), repeats=repeats, warmup=0)
+    fc, cl = read_fc_log(log), read_cycle_log(cycles)
+    t_join, _ = median_time(lambda: align(cl, fc), repeats=repeats, warmup=0)
+    t_an, _ = median_time(lambda: review(fc, cl), repeats=repeats, warmup=0)
+    rv, fl, al = review(fc, cl)
+    t0 = time.perf_counter()
+    write_html(d / "r.html", rv, fl, fc, cl, al)
+    t_html = time.perf_counter() - t0
+    total = t_read + t_cyc + t_an + t_html
+    f0, f1 = fc.span
+    minutes = (f1 - f0) / 60.0
+    row = [label, f"{f1 - f0:.0f}", f"{log.stat().st_size / 1e6:.1f}", f"{t_plain:.2f}", f"{t_read:.2f}",
+           f"{t_plain / t_read:.1f}", f"{t_cyc:.2f}", f"{t_join:.3f}", f"{t_an:.2f}", f"{t_html:.2f}", f"{total:.1f}",
+           f"{(t_read + t_cyc + t_join) / minutes:.2f}"]
+    return row, [label, al.method, f"{al.offset_s:.4f}", "-", "-", f"{al.residual_s * 1e3:+.2f}",
+                 f"{al.telemetry_lag_s * 1e3:+.1f}"]
+
+
+def pyulog_pass(path: Path) -> int:
+    """The baseline for a .ulg: pyulog reading every topic."""
+    from pyulog import ULog
+
+    return len(ULog(str(path)).data_list)
+
+
 def synthetic_alignment_errors() -> list[list[object]]:
     import review_synth as rs
 
@@ -117,7 +155,7 @@ def synthetic_alignment_errors() -> list[list[object]]:
                 # cross-correlation folds in the mean age of the message a cycle uses
                 truth = rs.OFFSET_S
                 rows.append([f"synthetic seed {seed}", al.method, f"{al.offset_s:.4f}", f"{truth:.4f}",
-                             f"{(al.offset_s - truth) * 1e3:+.2f}", f"{al.residual_s * 1e3:+.2f}"])
+                             f"{(al.offset_s - truth) * 1e3:+.2f}", f"{al.residual_s * 1e3:+.2f}", "-"])
     return rows
 
 
@@ -125,45 +163,33 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bin", default=str(DATA / "arduplane-flight.BIN"))
     ap.add_argument("--cycles", default=str(DATA / "arduplane-flight-cycles.csv"))
+    ap.add_argument("--ulg", default=str(DATA / "px4-flight.ulg"))
+    ap.add_argument("--ulg-cycles", default=str(DATA / "px4-flight-cycles.csv"))
     ap.add_argument("--copies", type=int, default=14, help="stitched copies of the flight (default 14)")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
 
-    from warpbridge.bridge.commands.fclog import read_fc_log
-    from warpbridge.bridge.commands.logjoin import align, read_cycle_log
-    from warpbridge.bridge.commands.review import review
-    from warpbridge.bridge.commands.review_plots import write_html
-
     rows, align_rows = [], []
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        for label, copies in (("real flight", 1), (f"stitched x{args.copies}", args.copies)):
+        for label, copies in (("ArduPlane flight", 1), (f"ArduPlane x{args.copies}", args.copies)):
             b, c = d / f"f{copies}.BIN", d / f"f{copies}.csv"
-            total_s, one_s = stitch_bin(Path(args.bin), b, copies, cycle_span(Path(args.cycles)))
+            _, one_s = stitch_bin(Path(args.bin), b, copies, cycle_span(Path(args.cycles)))
             stitch_cycles(Path(args.cycles), c, copies, one_s)
-            minutes = total_s / 60.0
-            t_plain, _ = median_time(lambda b=b: plain_pass(b), repeats=args.repeats, warmup=0)
-            t_read, _ = median_time(lambda b=b: read_fc_log(b), repeats=args.repeats, warmup=0)
-            t_cyc, _ = median_time(lambda c=c: read_cycle_log(c), repeats=args.repeats, warmup=0)
-            fc, cl = read_fc_log(b), read_cycle_log(c)
-            t_join, _ = median_time(lambda cl=cl, fc=fc: align(cl, fc), repeats=args.repeats, warmup=0)
-            t_an, _ = median_time(lambda cl=cl, fc=fc: review(fc, cl), repeats=args.repeats, warmup=0)
-            rv, fl, al = review(fc, cl)
-            t0 = time.perf_counter()
-            write_html(d / "r.html", rv, fl, fc, cl, al)
-            t_html = time.perf_counter() - t0
-            total = t_read + t_cyc + t_an + t_html
-            rows.append([label, f"{total_s:.0f}", f"{b.stat().st_size / 1e6:.1f}", f"{t_plain:.2f}", f"{t_read:.2f}",
-                         f"{t_plain / t_read:.1f}", f"{t_cyc:.2f}", f"{t_join:.3f}", f"{t_an:.2f}", f"{t_html:.2f}",
-                         f"{total:.1f}", f"{(t_read + t_cyc + t_join) / minutes:.2f}"])
-            align_rows.append([label, al.method, f"{al.offset_s:.4f}", "-", "-", f"{al.residual_s * 1e3:+.2f}"])
-    print("Review of a long flight (medians; s unless said)")
-    print(table(rows, ["flight", "flight s", "BIN MB", "plain pass", "read BIN", "x faster", "read cycles",
+            row, arow = review_times(label, b, c, plain_pass, args.repeats, d)
+            rows.append(row)
+            align_rows.append(arow)
+        row, arow = review_times("PX4 SIH flight", Path(args.ulg), Path(args.ulg_cycles), pyulog_pass, args.repeats, d)
+        rows.append(row)
+        align_rows.append(arow)
+    print("Review of a flight (medians; s unless said; baseline: a plain pymavlink pass, or pyulog of every topic)")
+    print(table(rows, ["flight", "flight s", "log MB", "baseline read", "our read", "x faster", "read cycles",
                        "join", "analysis", "html", "total", "read+join per min"]))
     print()
     align_rows += synthetic_alignment_errors()
-    print("Alignment (offset: FC time = cycle t + offset; error against the known truth where there is one)")
-    print(table(align_rows, ["flight", "method", "offset s", "truth s", "error ms", "residual ms"]))
+    print("Alignment (offset: FC time = cycle t + offset; error against the known truth where there is one;")
+    print("L_sp lag: the FC's logged L_sp behind the cycle log's, never negative when the offset is right)")
+    print(table(align_rows, ["flight", "method", "offset s", "truth s", "error ms", "residual ms", "L_sp lag ms"]))
     return 0
 
 
