@@ -51,6 +51,15 @@ def test_the_bridges_named_values_are_read_from_debug_key_value(fc):
     assert set(fc.named["WB_mode"].v) == {3.0}  # ff+pi throughout
 
 
+def test_a_name_px4_cut_to_nine_characters_is_named_back(tmp_path):
+    from test_fclog import ULG as SAMPLE
+    from test_fclog import _with_debug_key_value
+
+    out = tmp_path / "cut.ulg"
+    _with_debug_key_value(SAMPLE, out, [(21_000_000 + 100_000 * k, "WB_cal_pc", float(k)) for k in range(20)])
+    assert set(read_fc_log(out).named) == {"WB_cal_pct"}
+
+
 def test_outputs_parameters_and_events_of_the_flight(fc):
     # PWM_MAIN_FUNC1 201 (servo 1) with CA_SV_CS0_TYPE 1 (left aileron): output 1
     assert fc.aileron_channels == [1]
