@@ -492,7 +492,12 @@ def main(args: argparse.Namespace) -> int:
         if s.n:
             print(f"{w} wing: tracking RMS {s.rms:.3f} deg, 95% {s.p95:.3f} deg over {s.n} samples")
     for g in rv.roll_authority:
-        ff = f"RLL_RATE_FF ~ {g.ff_ardupilot:.3f}" if g.reliable else "too little manoeuvring to fit"
+        if not g.reliable:
+            ff = "too little manoeuvring to fit"
+        elif fc.autopilot == "px4":  # FW_RR_FF: docs/review.md
+            ff = f"{g.output_gain:.0f} deg/s per full output"
+        else:
+            ff = f"RLL_RATE_FF ~ {g.ff_ardupilot:.3f}"
         print(f"roll authority {g.band}: {g.gain:.2f} deg/s per deg (R2 {g.r2:.2f}, n {g.n}), {ff}")
     for w in rv.warnings:
         print(f"note: {w}")
