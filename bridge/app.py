@@ -167,6 +167,7 @@ class Bridge:
         self.telemetry = Telemetry(self.link, config.telemetry_rate_hz, clock=clock)
         self.mixer = Mixer(config.wings)
         self.wings: dict[str, WingState] = {}
+        self._sensor_keys: dict[str, set[str]] = {}  # each wing's sensor faults' status keys since it was good
         for name in WINGS:
             wc = config.wings[name]
             scal = servo_calibration(wc)
@@ -405,7 +406,7 @@ class Bridge:
 
     def _measure(self, name: str, w: WingState, now: float) -> float | None:
         """The wing's warp (deg) or None, with missing / out-of-range / frozen reported once."""
-        problem, raw = None, None
+        problem, kind, raw = None, None, None
         if w.sensor_cal is None or w.cfg.sensor_channel is None or not self.has_sensor:
             return None
         if self.sensor is None:
@@ -420,7 +421,7 @@ class Bridge:
             if raw is None or not math.isfinite(raw):
                 problem = "no reading"
             elif not lo <= raw <= hi:
-                problem = f"reading {raw:g} out of range"
+                problem, kind = f"reading {raw:g} out of range", "out of range"
             elif raw != w.raw_last:
                 w.raw_last, w.raw_since, w.u_at_change = raw, now, w.ctl.last_u
                 w.frozen = False
@@ -428,14 +429,19 @@ class Bridge:
                               abs((w.ctl.last_u) - w.u_at_change) > SENSOR_MOVE_MM):
                 w.frozen = True
                 problem = "frozen"
-        key, back = f"sensor-{name}", f"sensor-back-{name}"
+        # one key per kind of fault: the same fault flapping is held off, another kind is said at once
+        back = f"sensor-back-{name}"
         if problem is not None:
+            key = f"sensor-{name}-{kind or problem.split(' (')[0]}"
+            self._sensor_keys.setdefault(name, set()).add(key)
             self.telemetry.clear(back)
             self.telemetry.status(SEV_WARNING, f"WB {name} sensor {problem}: ff only", key=key)
             return None
-        if self.telemetry.active(key):
+        keys = self._sensor_keys.pop(name, set())
+        if any(self.telemetry.active(k) for k in keys):
             # keyed too, so a flapping sensor reports "back" at most once per key hold-off
-            self.telemetry.clear(key)
+            for k in keys:
+                self.telemetry.clear(k)
             self.telemetry.status(SEV_NOTICE, f"WB {name} sensor back", key=back)
         return w.sensor_cal.deg_for_counts(raw)
 

@@ -345,12 +345,36 @@ def test_sensor_fault_runs_feed_forward_with_integrator_held_and_recovers(tmp_pa
         assert bad_cycles > 100
         i_held = ctl._i
         problems = r.count("left sensor") - r.count("sensor back")
-        # reported once (a flapping fault at most once per 10 s key hold-off), not once per flap
-        assert 1 <= problems <= 2, r.texts
+        kinds = 2 if fault == "noisy" else 1  # a noisy sensor gives no reading and readings out of range
+        # each kind reported once (a flapping fault at most once per 10 s key hold-off), not once per flap
+        assert 1 <= problems <= 2 * kinds, r.texts
         assert r.count("sensor back") <= problems, r.texts
         wing.fault = None
         r.tick(200)
         assert r.bridge.wings["left"].last["warp"] is not None  # back on the sensor, PI trimming again
         assert ctl._i != i_held
+    finally:
+        r.close()
+
+
+def test_another_kind_of_sensor_fault_is_said_at_once_after_the_sensor_came_back(tmp_path):
+    wing = Wing()
+    r = Rig(tmp_path, sensor_counts=wing.counts)
+    wing.bridge = r.bridge
+    try:
+        r.pwm = 1700
+        wing.fault = "disconnected"  # no reading at start-up (a sensor still waking up)
+        r.tick(20)
+        wing.fault = None
+        r.tick(50)
+        assert r.count("left sensor no reading") == 1 and r.count("left sensor back") == 1, r.texts
+        wing.fault = "open-circuit"  # a second of later, well inside the 10 s hold-off of a flapping fault
+        r.tick(20)
+        assert r.count("out of range: ff only") == 1, r.texts
+        wing.fault = None
+        r.tick(20)
+        wing.fault = "open-circuit"  # the same fault again at once: flapping, held off
+        r.tick(20)
+        assert r.count("out of range: ff only") == 1, r.texts
     finally:
         r.close()
