@@ -63,13 +63,16 @@ def load_model_file(config: Config) -> ModelFile:
         raise UserError(f"[model] file: cannot read {config.model_file}: {e.strerror or e}") from None
     except (ValueError, TypeError, UnicodeDecodeError) as e:
         raise UserError(f"[model] file: {config.model_file}: {e}") from None
-    left = [e for e in mf.effects.active() if e not in INVERTIBLE and e != "delay"]
+    left = [e for e in mf.effects.active() if e not in INVERTIBLE and e not in ("delay", "servo_lag")]
     if left:
         log.warning("model effects %s cannot be inverted by a feed-forward; the PI trim handles them",
                     ", ".join(left))
     if mf.effects.delay_s > 0:  # identify's transport delay: the rig's servo, link and sensor lag
         log.info("model: the warp follows the tendon %.0f ms late (transport delay); the feed-forward inverts "
                  "the hysteresis only, the PI trim sees the delay", 1e3 * mf.effects.delay_s)
+    if mf.effects.servo_tau_s > 0:  # identify's servo lag: the tendon follows the command through it
+        log.info("model: the servo follows its command with a %.0f ms lag; the feed-forward inverts the hysteresis "
+                 "only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s)
     return mf
 
 

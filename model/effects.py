@@ -3,7 +3,7 @@
 Each effect of the design brief's table is one operator with one or two
 parameters, placed where it acts physically. The augmented plant is the chain::
 
-    u_cmd -> delay -> rate_limit -> slack (backlash + capstan stall) -> Bouc-Wen forward
+    u_cmd -> delay -> servo_lag -> rate_limit -> slack (backlash + capstan stall) -> Bouc-Wen forward
           (pre-tension moves its backbone or the whole loop, friction scales the band of z) -> aero_load
           -> w_true
           -> sensor_lag -> drift -> w_meas
@@ -11,6 +11,7 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | name        | parameters                     | operator                                             |
 |-------------|--------------------------------|------------------------------------------------------|
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
+| servo_lag   | servo_tau_s                    | first-order lag of the servo's position loop         |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
 | friction    | friction_scale, friction_pivot | the loop widens or narrows about a level inside it,  |
@@ -86,13 +87,18 @@ from warpbridge.model._jit import njit
 
 RHO_AIR = 1.225  # kg/m^3, sea-level standard
 
+# the effects the diagnosis searches for (a change between the bench and the field)
 EFFECT_NAMES: tuple[str, ...] = (
     "delay", "rate_limit", "backlash", "friction", "pretension", "sensor_lag", "drift", "aero_load",
 )
+# effects of the rig itself that identification finds beside the model and the diagnosis keeps as they are
+RIG_EFFECTS: tuple[str, ...] = ("servo_lag",)
 
 # effect name -> (field names, neutral values, physical meaning)
 EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "delay": (("delay_s",), (0.0,), "pure transport delay between command and tendon motion"),
+    "servo_lag": (("servo_tau_s",), (0.0,), "the servo's position loop: a first-order lag between command and "
+                  "tendon travel"),
     "rate_limit": (("rate_mm_s",), (math.inf,), "servo slew-rate limit"),
     "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
     "friction": (("friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm",
@@ -119,6 +125,7 @@ class Effects:
     """Magnitudes of every effect; the defaults are neutral (no effect)."""
 
     delay_s: float = 0.0
+    servo_tau_s: float = 0.0  # the servo's position loop, a first-order lag (part of the rig, found by identify)
     rate_mm_s: float = math.inf
     backlash_mm: float = 0.0
     friction_scale: float = 1.0
@@ -142,8 +149,8 @@ class Effects:
             if not isinstance(v, (int, float)) or math.isnan(v):
                 raise ValueError(f"effect parameter {f.name} must be a number")
             object.__setattr__(self, f.name, float(v))
-        if self.delay_s < 0 or self.backlash_mm < 0 or self.sensor_tau_s < 0:
-            raise ValueError("delay, backlash and sensor lag cannot be negative")
+        if self.delay_s < 0 or self.backlash_mm < 0 or self.sensor_tau_s < 0 or self.servo_tau_s < 0:
+            raise ValueError("delay, servo lag, backlash and sensor lag cannot be negative")
         if not self.rate_mm_s > 0:
             raise ValueError("rate limit must be positive")
         if not self.friction_scale > 0 or not self.pretension_gain > 0:
@@ -232,7 +239,7 @@ class Effects:
         kw: dict[str, float] = {}
         for name, params in d.items():
             if name not in EFFECT_FIELDS:
-                raise ValueError(f"unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+                raise ValueError(f"unknown effect {name!r} (known: {', '.join(EFFECT_FIELDS)})")
             if not isinstance(params, dict):
                 raise ValueError(f"effect {name!r} needs an object of parameters")
             for f, v in params.items():
@@ -450,11 +457,13 @@ def sensor_filtered(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: float = PULLED) -> np.ndarray:
-    """Tendon travel the sheath actually sees for command u (delay, rate limit, backlash and capstan stall), the
-    play starting on the edge ``slack_side`` names (``slack_start``)."""
+    """Tendon travel the sheath actually sees for command u (delay, servo lag, rate limit, backlash and capstan
+    stall), the play starting on the edge ``slack_side`` names (``slack_start``)."""
     x = np.ascontiguousarray(u, dtype=np.float64)
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
+    if eff.servo_tau_s > 0:
+        x = lagged(t, x, eff.servo_tau_s, float(x[0]))
     if math.isfinite(eff.rate_mm_s):
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.has_slack:

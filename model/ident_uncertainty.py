@@ -5,8 +5,10 @@ residuals (per kept sample, normalised warp) with the residual variance gives
 the covariance of the search vector theta. A log's residuals are not
 independent (a model error follows the loop, the sensor may be filtered), so the
 variance is scaled by n / n_eff, the effective sample count from the residuals'
-autocorrelation (``signals.effective_samples``). Directions the data do not
-constrain (near-zero singular values of J) get an infinite interval. The
+autocorrelation (``signals.effective_samples``). The search box is a weak
+prior (each coordinate within it, its width four standard deviations): a
+direction the data do not constrain gets an interval as wide as the box, not an
+infinite one, so a short log still says how far each parameter may be off. The
 physical parameters' intervals follow by the delta method through the map from
 theta to the model in mm and deg (az = 1 fixes the scale, so az has none).
 
@@ -27,6 +29,7 @@ from warpbridge.model.signals import effective_samples
 
 Z95 = 1.959963984540054
 RCOND = 1e-6  # singular values of J below this share of the largest are directions the data do not constrain
+PRIOR_BOX_SDS = 4.0  # the search box spans this many standard deviations of the weak prior it stands for
 BOX_SHARE = 0.1  # a search coordinate whose 95 % half-width exceeds this share of its box is not determined
 PARAM_NAMES = ("a1", "a2", "a3", "az", "A", "n", "b1", "b2", "b3", "b4", "b5", "b6")
 
@@ -72,14 +75,22 @@ class Uncertainty:
                 "undetermined": list(self.undetermined), "fixed": dict(self.fixed)}
 
 
-def theta_covariance(J: np.ndarray, r: np.ndarray, n_eff: float) -> np.ndarray:
+def theta_covariance(J: np.ndarray, r: np.ndarray, n_eff: float, prior_sd: np.ndarray | None = None) -> np.ndarray:
     """Covariance of theta from the Jacobian J (m x p) and residuals r at the optimum: s^2 (J^T J)^-1 with
-    s^2 = r.r / (m - p), times m / n_eff; inf on the diagonal along directions J does not constrain."""
+    s^2 = r.r / (m - p), times m / n_eff; with ``prior_sd`` (one per coordinate) the prior's precision is
+    added to the data's, (J^T J / s^2 + diag(prior_sd^-2))^-1; without it, inf on the diagonal along
+    directions J does not constrain."""
     m, p = J.shape
     s2 = float(r @ r) / max(m - p, 1)
     scale = s2 * m / max(n_eff, 1.0)
     if not np.all(np.isfinite(J)):
         return np.full((p, p), np.inf)
+    if prior_sd is not None and scale > 0:
+        # the SVD of the stacked square roots, not the eigenvalues of the sum: the data's precision can
+        # outweigh the prior's by more than the float's precision along the directions the data do pin down
+        A = np.vstack([J / math.sqrt(scale), np.diag(1.0 / np.asarray(prior_sd, dtype=np.float64))])
+        _, sv, Vt = np.linalg.svd(A, full_matrices=False)
+        return (Vt.T / sv ** 2) @ Vt
     ev, V = np.linalg.eigh(J.T @ J)  # singular values of J squared: the normal matrix is p x p
     keep = ev > RCOND ** 2 * max(float(ev[-1]), 0.0)
     inv = np.where(keep, 1.0 / np.where(keep, ev, 1.0), 0.0)
@@ -105,7 +116,7 @@ def intervals(theta: np.ndarray, names: tuple[str, ...], J: np.ndarray, r: np.nd
     a1..b6 in mm and deg."""
     m, p = J.shape
     n_eff = effective_samples(r)
-    cov = theta_covariance(J, r, n_eff)
+    cov = theta_covariance(J, r, n_eff, (hi - lo) / PRIOR_BOX_SDS)
     search = {names[i]: _interval(float(theta[i]), float(cov[i, i]), BOX_SHARE * float(hi[i] - lo[i]))
               for i in range(p)}
     phys = to_physical(theta)
@@ -131,7 +142,7 @@ def intervals(theta: np.ndarray, names: tuple[str, ...], J: np.ndarray, r: np.nd
             params[name] = Interval(float(phys[i]), 0.0, float(phys[i]), float(phys[i]), True)
             continue
         params[name] = _interval(float(phys[i]), float(var_phys[i]), abs(float(phys[i])))
-    undetermined = [k for k, v in params.items() if not v.determined] + [
-        k for k, v in search.items() if not v.determined]
+    undetermined = [k for k, v in params.items() if not v.determined]
+    undetermined += [k for k, v in search.items() if not v.determined and k not in undetermined]  # n: in both
     sd = math.sqrt(float(r @ r) / max(m, 1)) * ws
     return Uncertainty(params, search, sd, int(m), float(n_eff), undetermined, fixed)

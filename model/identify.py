@@ -25,6 +25,15 @@ fixed by the warp and the shape parameters (A, n, b). So:
    and, for half of the starts, at the warp's own (a closed loop's command
    reacts to the sensor's noise, so its turns are not the warp's), and in each
    run the warp is replaced by its least-squares monotone fit.
+   ``servo lag``: the servo's position loop smooths what the command does faster than it (a closed
+   loop's feed-forward jumps at each setpoint step); the model fed the raw command reverses where the
+   tendon never went. The design's best shapes are solved again with the input through first-order lags
+   (``lag_scan``); the best lag, when it lowers their input-side cost by ``LAG_GAIN``, is put in front of
+   the model once the model without it is final (steps 5-8): the design is solved again through the lag
+   and refined, with the model found without it as one more start, checked for a fold and against the
+   simpler models, and the lag is kept only when the result fits the training part better by
+   ``DELAY_GAIN`` and by what the information criterion asks of one more parameter on the log's effective
+   samples (``lag_pays``; ``servo_tau_s``; not with a delay scan, whose delay stands for it).
 5. ``local refine``: the distinct best shapes, with the straight line and the
    quadratic backbone, are scored on the forward output error (warp simulated
    from the logged tendon input, every stretch started from the state its own
@@ -75,13 +84,13 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from warpbridge.model import ident_design as design
 from warpbridge.model.boucwen import BoucWenParams, forward
-from warpbridge.model.effects import delayed
+from warpbridge.model.effects import delayed, lagged
 from warpbridge.model.ident_global import global_search
 from warpbridge.model.ident_path import (
     BUDGET_PER_POINT,
@@ -116,6 +125,7 @@ from warpbridge.model.initial_state import estimate_z0
 from warpbridge.model.signals import (
     central_range,
     compress_path,
+    effective_samples,
     linear_baseline,
     linear_fit,
     noise_floor,
@@ -157,6 +167,11 @@ ESCALATE_NOISES = 5.0  # ... or when the first result's training RMS is above th
 GLOBAL_SEEDED = 10  # the design's best starts placed in its first population, beside the refined results
 POPSIZE_GLOBAL = 110  # its population (ten per parameter of a two-sided wing)
 MAXITER_GLOBAL = 150  # generations of the escalation's global search at most (``model.ident_global``)
+LAG_GRID_S = (0.005, 0.01, 0.02, 0.03, 0.05, 0.08)  # servo lags the scan tries (s)
+LAG_GAIN = 0.1  # a lag is tried when it lowers the design's best input-side cost by this share of the no-lag cost
+LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves at each lag
+# the search trace's record of the fold and simpler-model steps: the lag's pass writes its own, kept with it
+LAG_PASS_FIELDS = ("fold_deg", "working_range_deg", "fold_outcome", "fold_train_rms", "line_restart", "kept_start")
 LINE_ZSAT = -3.5  # log10 of the state's saturation (normalised) of the straight-line and quadratic starts
 
 
@@ -213,6 +228,18 @@ class LogData:
     train_mask: np.ndarray
     held_mask: np.ndarray
     noise: float
+    lag_s: float = 0.0  # the servo's lag the model's input passes through (``lag_scan``)
+    x: np.ndarray | None = field(default=None, repr=False)  # the input the model sees: u through the lag (mm)
+    x_hat: np.ndarray | None = field(default=None, repr=False)  # ... normalised
+
+    def __post_init__(self) -> None:
+        if self.x is None:
+            self.x, self.x_hat = self.u, self.u_hat
+
+    def with_lag(self, lag_s: float) -> LogData:
+        """The same log with the model's input passed through a servo lag of ``lag_s`` (0: none)."""
+        x = lagged(self.t, self.u, lag_s, float(self.u[0])) if lag_s > 0 else self.u
+        return replace(self, lag_s=float(lag_s), x=x, x_hat=(x - self.norm.uc) / self.norm.us)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -333,7 +360,7 @@ def linear_solve(data: LogData, S: np.ndarray, labels: list[str], keep: int) -> 
     lo, hi = design.shape_bounds(data.two_sided)
     thetas, rms, names, evaluations = [], [], [], 0
     for turns_from in ("input", "warp"):  # runs cut at the input's turns, and at the warp's: half the starts each
-        wp = design.WarpPath.build(data.u_hat, data.w_hat, data.n_train_end, data.noise / data.norm.ws, turns_from)
+        wp = design.WarpPath.build(data.x_hat, data.w_hat, data.n_train_end, data.noise / data.norm.ws, turns_from)
         problem = design.InputSide(wp, data.norm.c)
         sol = problem.solve(S)
         evaluations += problem.evaluations
@@ -353,7 +380,7 @@ def linear_solve(data: LogData, S: np.ndarray, labels: list[str], keep: int) -> 
 def line_alpha(data: LogData) -> np.ndarray:
     """Backbone (alpha1, alpha2, alpha3 around c, normalised) of the best straight line w = c0 + c1 u fitted
     on the training samples, written as u of w."""
-    c0, c1 = linear_fit(data.u_hat, data.w_hat, data.train_mask)
+    c0, c1 = linear_fit(data.x_hat, data.w_hat, data.train_mask)
     a2 = 1.0 / c1 if c1 != 0 else 1.0
     return np.array([0.0, a2, (data.norm.c - c0) * a2])
 
@@ -366,6 +393,62 @@ def simple_theta(data: LogData, alpha: np.ndarray) -> np.ndarray:
     th[2] = th[3] = LINE_ZSAT
     th[6:9] = alpha
     return th
+
+
+def lag_pays(rms_without: float, rms_with: float, residuals: np.ndarray) -> bool:
+    """Does the servo lag earn its parameter? The training cost must fall by ``DELAY_GAIN`` and by more than
+    the Bayesian information criterion asks of one more parameter on the residuals' effective sample count
+    (n_eff ln(c0 / c1) > ln n_eff): a short log with few independent samples needs a clear gain."""
+    c0, c1 = rms_without ** 2, rms_with ** 2
+    if not (c1 > 0 and c1 <= (1.0 - DELAY_GAIN) * c0):
+        return c1 == 0.0 < c0
+    n_eff = max(effective_samples(residuals), 2.0)
+    return bool(n_eff * math.log(c0 / c1) > math.log(n_eff))
+
+
+def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> float:
+    """Step 4's servo lag (s): the first-order lag in front of the model under which the design's best shapes
+    explain the input best. The servo's position loop smooths what the command does faster than it (a
+    closed loop's feed-forward jumps at every step of the setpoint): the model fed the raw command reverses
+    where the tendon never went, and every loop after it is wrong. The input-side cost of the ``LAG_SHAPES``
+    best distinct shapes at no lag is solved again at each lag of ``LAG_GRID_S`` (up to ``max_lag_s`` and a
+    twentieth of the training part); a parabola through the best and its neighbours places it between grid
+    points. No lag unless the best lowers the cost by ``LAG_GAIN``; the forward error confirms it later."""
+    t, n_end = data.t, data.n_train_end
+    dur = float(t[n_end - 1] - t[0]) if n_end > 1 else 0.0
+    grid = [d for d in LAG_GRID_S if d <= max_lag_s and d <= 0.05 * dur]
+    if not grid:
+        return 0.0
+    lo, hi = design.shape_bounds(data.two_sided)
+
+    def cost_at(lag: float, shapes: np.ndarray) -> np.ndarray:
+        d = data.with_lag(lag)
+        wp = design.WarpPath.build(d.x_hat, d.w_hat, n_end, d.noise / d.norm.ws, "input")
+        return design.InputSide(wp, d.norm.c).solve(shapes).cost
+
+    c0 = cost_at(0.0, S)
+    keep = design.distinct_best(S, c0, LAG_SHAPES, lo, hi)
+    if keep.size == 0:
+        return 0.0
+    shapes = S[keep]
+    tried = {0.0: float(np.min(c0[keep]))}
+    for lag in grid:
+        c = cost_at(lag, shapes)
+        tried[lag] = float(np.min(c)) if np.isfinite(c).any() else math.inf
+    best = min(tried, key=lambda k: tried[k])
+    if best <= 0 or not tried[best] <= (1.0 - LAG_GAIN) * tried[0.0]:
+        return 0.0
+    ds = sorted(tried)
+    k = ds.index(best)
+    if k + 1 < len(ds):  # the vertex of the parabola through the best lag and its two neighbours
+        (d0, d1, d2), (f0, f1, f2) = ds[k - 1:k + 2], (tried[d] for d in ds[k - 1:k + 2])
+        den = (d1 - d0) * (f1 - f2) - (d1 - d2) * (f1 - f0)
+        if den != 0 and all(map(math.isfinite, (f0, f1, f2))):
+            v = d1 - 0.5 * ((d1 - d0) ** 2 * (f1 - f2) - (d1 - d2) ** 2 * (f1 - f0)) / den
+            best = float(min(max(v, 0.5 * (d0 + d1)), 0.5 * (d1 + d2)))
+    log.info("servo lag %.1f ms: the design's best input-side cost %.3g at no lag, %.3g at the scan's best",
+             1e3 * best, tried[0.0], min(tried.values()))
+    return best
 
 
 # ---- step 5: local refinement ------------------------------------------------------------------
@@ -399,6 +482,8 @@ class SearchTrace:
     global_kept: bool = False  # its refined result ran free over the training part better and was kept
     global_generations: int = 0
     global_train_rms: tuple[float, float] | None = None  # training RMS (deg) from the design and from the search
+    lag_s: float = 0.0  # the servo lag the scan proposed (s; 0: none), kept or not
+    lag_train_rms: tuple[float, float] | None = None  # training RMS (deg) without the lag and with it
 
 
 class Refiner:
@@ -518,7 +603,7 @@ def delay_scan(data: LogData, theta0: np.ndarray, max_delay_s: float, fold, prog
 
     def fit_at(d: float, start: np.ndarray) -> tuple[np.ndarray, float]:
         nonlocal calls
-        x = delayed(t, data.u_hat, d) if d > 0 else data.u_hat
+        x = delayed(t, data.x_hat, d) if d > 0 else data.x_hat
         obj = Objective(FitPath.build(x, data.w_hat, n_end, SEARCH_POINTS, SEARCH_REVERSALS), data.norm.c, fold=fold)
         r = refine(obj, start, lo, hi, DELAY_SCAN_ITER, tol=FIT_TOL_Z)
         calls += obj.calls
@@ -592,13 +677,15 @@ class IdentResult:
     excitation: Excitation | None = None
     linear_train_rms: float = math.nan  # the best straight line's training RMS (deg)
     seed: int = 0  # the design's scramble (0: the default's)
+    servo_tau_s: float = 0.0  # the servo's lag in front of the model (s): it sees u through a first-order lag
 
     def fit_dict(self) -> dict:
         d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
              "linear_heldout_rms_deg": self.linear_heldout_rms, "n_train": self.n_train,
              "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
              "evaluations": self.evaluations, "method": "variable-projection design + levenberg-marquardt",
-             "z0_start_of_log": self.z0, "delay_s": self.delay_s, "linear_train_rms_deg": self.linear_train_rms,
+             "z0_start_of_log": self.z0, "delay_s": self.delay_s, "servo_tau_s": self.servo_tau_s,
+             "linear_train_rms_deg": self.linear_train_rms,
              "design_seed": self.seed}
         if self.travel_mm is not None:
             d["travel_mm"] = list(self.travel_mm)
@@ -614,6 +701,8 @@ class IdentResult:
             d |= {"design_size": self.trace.design_size, "start_kept": self.trace.kept_start,
                   "line_restart": self.trace.line_restart, "global_search": self.trace.global_search,
                   "global_search_kept": self.trace.global_kept}
+            if self.trace.lag_train_rms is not None:
+                d["servo_lag_train_rms_deg"] = list(self.trace.lag_train_rms)
         if self.excitation is not None:
             d["excitation"] = self.excitation.to_dict()
         if self.uncertainty is not None:
@@ -681,7 +770,7 @@ class Candidate:
 def evaluate(data: LogData, theta: np.ndarray, delay: float) -> Candidate:
     """Physical parameters, z0, the prediction of the whole log and the training RMS of one search vector."""
     params = data.norm.to_physical(theta_to_normalised(theta, data.norm.c))
-    x = delayed(data.t, data.u, delay) if delay > 0 else data.u
+    x = delayed(data.t, data.x, delay) if delay > 0 else data.x
     n_end = data.n_train_end
     z0 = estimate_z0(params, x[:n_end], data.w[:n_end])
     w_pred, _, _ = forward(params, x, z0=z0)
@@ -693,7 +782,7 @@ def evaluate(data: LogData, theta: np.ndarray, delay: float) -> Candidate:
 
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
              polish_evals: int = 2500, max_fit_points: int = 2500,
-             prior: BoucWenParams | None = None, max_delay_s: float = 0.0,
+             prior: BoucWenParams | None = None, max_delay_s: float = 0.0, max_lag_s: float = LAG_GRID_S[-1],
              progress: Callable[[str, int, int], None] | None = None) -> IdentResult:
     """Identify the Bouc-Wen model (warp -> tendon) from a log by forward output error (see the module).
 
@@ -701,7 +790,9 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     (by time) is held out. ``seed`` selects the scramble of the start design (0: the fixed default; the answer
     does not depend on it beyond the refinements' tolerance); ``popsize`` distinct design starts are ranked on
     the forward error; each refinement takes at most ``maxiter`` Gauss-Newton steps and ``polish_evals``
-    evaluations; ``prior`` (default: the paper's parameters) adds its shape to the design.
+    evaluations; ``prior`` (default: the paper's parameters) adds its shape to the design. ``max_lag_s`` bounds
+    the servo lag the scan tries in front of the model (0: none), ``max_delay_s`` the transport delay (with a
+    delay scan no lag is scanned: the delay stands for the servo, link and sensor lag together).
     ``progress(stage, i, n)`` is called once per refinement step."""
     data = read(t, u, w, heldout_frac)
     n_end = data.n_train_end
@@ -712,7 +803,10 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     if progress:
         progress("design", 0, 1)
     S, labels = start_design(data, seed, prior)
-    starts = linear_solve(data, S, labels, max(1, RANKED_PER_POPSIZE * popsize))
+    keep_starts = max(1, RANKED_PER_POPSIZE * popsize)
+    # with a delay scan asked for, the delay stands for the servo, link and sensor lag together
+    lag = lag_scan(data, S, max_lag_s) if max_lag_s > 0 and max_delay_s <= 0 else 0.0
+    starts = linear_solve(data, S, labels, keep_starts)
     trace.design_size = int(S.shape[0])
     if progress:
         progress("design", 1, 1)
@@ -722,7 +816,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     def search(thetas: np.ndarray, names: list[str], fold, stage: str, n_refine: int = REFINED_STARTS,
                ) -> tuple[np.ndarray, float]:
         """Steps 5-6 from these starts: (theta, delay)."""
-        ref = Refiner(data, data.u_hat, max_fit_points, fold, trace, max_iter, progress, stage)
+        ref = Refiner(data, data.x_hat, max_fit_points, fold, trace, max_iter, progress, stage)
         refiners.append(ref)
         theta, cost, label = ref.run(thetas, names, n_refine)
         trace.kept_start = label
@@ -732,7 +826,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             delay, x_start, scan_calls = delay_scan(data, theta, max_delay_s, fold, progress)
             calls[0] += scan_calls
             if delay > 0:
-                ref_d = Refiner(data, delayed(data.t, data.u_hat, delay), max_fit_points, fold, trace, max_iter,
+                ref_d = Refiner(data, delayed(data.t, data.x_hat, delay), max_fit_points, fold, trace, max_iter,
                                 progress, stage)
                 r = refine(ref_d.polish_obj, x_start, lo, hi, max_iter, ref_d._polish_cb)
                 calls[0] += ref_d.calls
@@ -752,7 +846,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         log.info("the refinement settled at the exponent's upper limit (n = %.3g): refining the next starts",
                  best.params.n)
         trace.restarts += 1
-        costs = Refiner(data, data.u_hat, max_fit_points, None, trace, max_iter, None, "").rank(starts.thetas)
+        costs = Refiner(data, data.x_hat, max_fit_points, None, trace, max_iter, None, "").rank(starts.thetas)
         order = [int(i) for i in np.argsort(costs)][REFINED_STARTS:] or list(range(len(starts.labels)))
         again = evaluate(data, *search(starts.thetas[order], [starts.labels[i] for i in order], None,
                                        "refine again"))
@@ -761,30 +855,25 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             best = again
     if not first.agreed or best.train_rms > ESCALATE_NOISES * data.noise:
         best = escalate(data, best, first, starts, seed, trace, search, progress)
-    w_lo, w_hi = working_range(data.w, data.two_sided)
-    fold_hat = (w_lo / data.norm.ws, w_hi / data.norm.ws)
-    if fold_depth(best.theta, data.norm.c, *fold_hat)[0] > 0:
-        trace.fold_deg = float(data.norm.ws * backbone_vertex(best.theta, data.norm.c)[0])
-        trace.working_range_deg = (w_lo, w_hi)
-        log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: refining again with "
-                 "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
-        flat = starts.thetas.copy()
-        ok = fold_depth(flat, data.norm.c, *fold_hat) <= 0
-        th2, d2 = search(flat[ok] if ok.any() else flat, [n for n, k in zip(starts.labels, ok, strict=True) if k]
-                         if ok.any() else starts.labels, fold_hat, "refine without a fold")
-        unfolded = evaluate(data, th2, d2)
-        trace.fold_train_rms = (best.train_rms, unfolded.train_rms)
-        if fold_depth(th2, data.norm.c, *fold_hat)[0] > 0:
-            trace.fold_outcome = "still folds"
-            log.warning("no backbone without a fold inside the working range fits: the first model kept")
-        elif unfolded.train_rms > FOLD_KEEP * best.train_rms:
-            trace.fold_outcome = "fits worse"
-            log.info("without the fold the training RMS rises from %.3g to %.3g deg: the data show the fold, the "
-                     "first model kept", best.train_rms, unfolded.train_rms)
-        else:
-            trace.fold_outcome = "kept"
-            best = unfolded
+    best = fold_check(data, best, starts, trace, search)
     best = simpler_models(data, best, starts, trace, search, progress)
+    if lag > 0:  # the scan's servo lag: the design solved through it and refined, the model without it a start
+        plain, data = data, data.with_lag(lag)
+        kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}  # what the model without the lag did
+        lag_starts = linear_solve(data, S, labels, keep_starts)
+        th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
+        with_lag = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
+        with_lag = simpler_models(data, with_lag, lag_starts, trace, search, progress)
+        trace.lag_s = lag
+        trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
+        if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask]):
+            best = with_lag
+        else:
+            log.info("servo lag %.1f ms not kept: the model fits the training part no better with it (%.4g deg "
+                     "against %.4g without)", 1e3 * lag, with_lag.train_rms, best.train_rms)
+            data = plain
+            for k, v in kept_trace.items():
+                setattr(trace, k, v)
     err = best.w_pred - data.w
     held_rms = float(np.sqrt(np.mean(err[data.held_mask] ** 2))) if data.held_mask.any() else float("nan")
     unc = uncertainty(data, best, exc)
@@ -796,7 +885,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         heldout_mask=data.held_mask, z0=best.z0, trace=trace,
         support=support_check(data.t, data.u, data.w, best.w_pred, data.train_mask, data.held_mask, data.noise),
         delay_s=best.delay, travel_mm=central_range(data.u), uncertainty=unc, excitation=exc,
-        linear_train_rms=trace.line_train_rms, seed=seed)
+        linear_train_rms=trace.line_train_rms, seed=seed, servo_tau_s=data.lag_s)
 
 
 def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, seed: int, trace: SearchTrace,
@@ -828,6 +917,35 @@ def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, see
         trace.global_kept = True
         trace.kept_start = "global"
         return cand
+    return best
+
+
+def fold_check(data: LogData, best: Candidate, starts: Starts, trace: SearchTrace, search) -> Candidate:
+    """Step 7: a backbone that folds inside the working range is refined again from starts that do not fold,
+    folding backbones rejected; the result is kept unless it fits the training part ``FOLD_KEEP`` worse."""
+    w_lo, w_hi = working_range(data.w, data.two_sided)
+    fold_hat = (w_lo / data.norm.ws, w_hi / data.norm.ws)
+    if fold_depth(best.theta, data.norm.c, *fold_hat)[0] > 0:
+        trace.fold_deg = float(data.norm.ws * backbone_vertex(best.theta, data.norm.c)[0])
+        trace.working_range_deg = (w_lo, w_hi)
+        log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: refining again with "
+                 "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
+        flat = starts.thetas.copy()
+        ok = fold_depth(flat, data.norm.c, *fold_hat) <= 0
+        th2, d2 = search(flat[ok] if ok.any() else flat, [n for n, k in zip(starts.labels, ok, strict=True) if k]
+                         if ok.any() else starts.labels, fold_hat, "refine without a fold")
+        unfolded = evaluate(data, th2, d2)
+        trace.fold_train_rms = (best.train_rms, unfolded.train_rms)
+        if fold_depth(th2, data.norm.c, *fold_hat)[0] > 0:
+            trace.fold_outcome = "still folds"
+            log.warning("no backbone without a fold inside the working range fits: the first model kept")
+        elif unfolded.train_rms > FOLD_KEEP * best.train_rms:
+            trace.fold_outcome = "fits worse"
+            log.info("without the fold the training RMS rises from %.3g to %.3g deg: the data show the fold, the "
+                     "first model kept", best.train_rms, unfolded.train_rms)
+        else:
+            trace.fold_outcome = "kept"
+            best = unfolded
     return best
 
 
@@ -866,7 +984,7 @@ def simpler_models(data: LogData, best: Candidate, starts: Starts, trace: Search
 def uncertainty(data: LogData, best: Candidate, exc: Excitation) -> Uncertainty | None:
     """Step 10: 95 % intervals of every parameter at the optimum (``model.ident_uncertainty``), on the
     polish's path of the model's own input (its delay applied)."""
-    x = delayed(data.t, data.u_hat, best.delay) if best.delay > 0 else data.u_hat
+    x = delayed(data.t, data.x_hat, best.delay) if best.delay > 0 else data.x_hat
     obj = Objective(FitPath.build(x, data.w_hat, data.n_train_end, 2500, POLISH_REVERSALS), data.norm.c)
     lo, hi = data.bounds
     try:

@@ -211,7 +211,7 @@ def refit_full(base: BoucWenParams, t, u, w, *, lag_s: float = 0.02, heldout_fra
     x = lagged(t, u, lag_s, float(u[0])) if lag_s > 0 else u
     n_fit = int(np.searchsorted(t, t[held][0])) if held.any() else t.size
     ident = identify(t[:n_fit], x[:n_fit], w[:n_fit], heldout_frac=0.2, seed=seed, maxiter=maxiter,
-                     prior=base, max_delay_s=0.0, progress=progress)  # the servo's lag is lag_s here
+                     prior=base, max_delay_s=0.0, max_lag_s=0.0, progress=progress)  # the servo's lag is lag_s here
     p = ident.params
     w_new = predict(p, t, u, lag_s)
     w_old = predict(old, t, u, lag_s)

@@ -220,8 +220,9 @@ def test_predict_adds_the_bench_correction_the_model_carries_when_asked(tmp_path
         log = np.loadtxt(tmp_path / f"{name}-clean.csv", delimiter=",", skiprows=1)
         log[:, 2] = two_stage_lag(log[:, 0], log[:, 2], 0.04, 0.015, substeps=10) + 0.03 * rng.standard_normal(len(log))
         np.savetxt(tmp_path / f"{name}.csv", log[:, :3], delimiter=",", header="t,u,warp", comments="", fmt="%.9g")
-    # no transport delay in front of the model (the default): the sensor's lag is left to the correction
-    assert run("identify", tmp_path / "bench.csv", "-o", tmp_path / "model.json", "--quiet", "--maxiter", 60) == 0
+    # no transport delay and no servo lag in front of the model: the sensor's lag is left to the correction
+    assert run("identify", tmp_path / "bench.csv", "-o", tmp_path / "model.json", "--quiet", "--maxiter", 60,
+               "--max-lag", 0) == 0
     assert json.loads((tmp_path / "model.json").read_text())["model_error"]["sets"]
     capsys.readouterr()
     assert run("predict", tmp_path / "check.csv", "--model", tmp_path / "model.json", "-o", tmp_path / "c.csv",

@@ -147,7 +147,7 @@ def test_a_broken_model_is_rejected(written, what, edit):
 def test_the_schemas_effect_vocabulary_is_the_codes(name):
     defs = load_schema(name)["$defs"]
     assert defs["effect_name"]["enum"] == list(EFFECT_NAMES)
-    assert list(defs["effects"]["properties"]) == list(EFFECT_NAMES)
+    assert list(defs["effects"]["properties"]) == list(EFFECT_FIELDS)  # the diagnosis's and the rig's effects
     for effect, (fields, _, _) in EFFECT_FIELDS.items():
         assert list(defs[f"params_{effect}"]["properties"]) == list(fields), effect
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import fields as dataclass_fields
 
 from warpbridge.bridge.errors import UserError
-from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects
+from warpbridge.model.effects import EFFECT_FIELDS, Effects
 
 PARAMETERS = frozenset(f.name for f in dataclass_fields(Effects))
 
@@ -36,7 +36,7 @@ def parse_effects(spec: str | None) -> Effects:
             names = (name,)
             example = f"{name}=<value>"
         else:
-            raise UserError(f"--effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)}, or one of "
+            raise UserError(f"--effects: unknown effect {name!r} (known: {', '.join(EFFECT_FIELDS)}, or one of "
                             "their parameters by name)")
         if not sep or not vals.strip():
             raise UserError(f"--effects: effect {name!r} needs a value, e.g. {example}")
@@ -60,4 +60,5 @@ def describe(name: str) -> str:
 
 
 def help_text() -> str:
-    return "; ".join(f"{n}={describe(n)}" for n in EFFECT_NAMES) + "; or one parameter by its name (aero_deg_per_kpa=2)"
+    return ("; ".join(f"{n}={describe(n)}" for n in EFFECT_FIELDS)
+            + "; or one parameter by its name (aero_deg_per_kpa=2)")

@@ -32,12 +32,13 @@ from warpbridge.bridge.commands.plots import plot_identification
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.diagnose import bench_known_error
 from warpbridge.model.effects import Effects
-from warpbridge.model.identify import DELAY_GRID_S, identify
+from warpbridge.model.identify import DELAY_GRID_S, LAG_GRID_S, identify
 from warpbridge.model.input_check import input_check
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+MAX_LAG_S = LAG_GRID_S[-1]  # the longest servo lag the scan tries
 MAX_DELAY_S = DELAY_GRID_S[-1]  # the longest delay the scan tries: the search a model to diagnose with needs
 
 
@@ -57,6 +58,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="search a transport delay up to this long (s) in front of the model: the servo, link and "
                         f"sensor lag of the rig; {MAX_DELAY_S:g} for a model to diagnose with (default 0: "
                         "none, the model the feed-forward flies best with)")
+    p.add_argument("--max-lag", type=float, default=MAX_LAG_S,
+                   help="scan a servo lag (first-order, its position loop) up to this long (s) in front of the "
+                        f"model, kept when it fits the log better (default {MAX_LAG_S:g}; 0: none). A closed-loop "
+                        "log's command jumps faster than the servo follows: fed the raw command, the model reverses "
+                        "where the tendon never went")
     p.add_argument("--check", metavar="LOG",
                    help="a second bench log of the same rig, recorded with another input (a sweep, a multisine), "
                         "in the bench log's format (read with the same --wing): the model is scored on it, and "
@@ -99,7 +105,8 @@ class Progress:
                  "global": "global search (differential evolution), the starts disagreeing",
                  "refine without a fold": "refinement again, the backbone kept from folding",
                  "line": "refinement again, from the straight line", "polish": "refinement on more of the log",
-                 "delay": "transport delay scan"}.get(stage, stage)
+                 "delay": "transport delay scan",
+                 "lag": "refinement with the servo lag the scan found"}.get(stage, stage)
         if not sys.stderr.isatty():  # a log file gets a line per quarter, not a redrawn bar
             q = 4 * i // max(n, 1)
             if stage != self.stage or q != getattr(self, "_q", -1):
@@ -127,6 +134,8 @@ def main(args: argparse.Namespace) -> int:
         raise UserError("--maxiter must be at least 1")
     if not 0.0 <= args.max_delay <= MAX_DELAY_S:
         raise UserError(f"--max-delay must lie between 0 and {MAX_DELAY_S:g} s (the longest delay the scan tries)")
+    if not 0.0 <= args.max_lag <= MAX_LAG_S:
+        raise UserError(f"--max-lag must lie between 0 and {MAX_LAG_S:g} s (the longest lag the scan tries)")
     data = read_log(args.log, wing=args.wing)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -137,7 +146,7 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         res = identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed, maxiter=args.maxiter,
-                       max_delay_s=args.max_delay, progress=progress)
+                       max_delay_s=args.max_delay, max_lag_s=args.max_lag, progress=progress)
     except ValueError as e:
         raise UserError(f"{args.log}: {e}") from None
     finally:
@@ -150,7 +159,8 @@ def main(args: argparse.Namespace) -> int:
             "created": datetime.now(UTC).isoformat(timespec="seconds"), "seed": args.seed}
     # z0 stays at rest: the state at the start of this log says nothing about another log's (predict
     # and diagnose estimate it from each log's first samples); the fit record keeps this log's
-    mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s), fit=fit, meta=meta)
+    mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s, servo_tau_s=res.servo_tau_s), fit=fit,
+                   meta=meta)
     mf.model_error = bench_model_error(mf, data)
     check_lines = []
     if check is not None:
@@ -174,6 +184,9 @@ def main(args: argparse.Namespace) -> int:
     if res.delay_s > 0:
         print(f"  transport delay {1e3 * res.delay_s:.1f} ms in front of the model (the rig's servo, link and sensor "
               "lag; effects.delay_s)")
+    if res.servo_tau_s > 0:
+        print(f"  servo lag {1e3 * res.servo_tau_s:.1f} ms in front of the model (the servo's position loop, a "
+              "first-order lag; effects.servo_lag)")
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
     if res.trace.restarts:
