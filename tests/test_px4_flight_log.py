@@ -111,6 +111,7 @@ def test_review_writes_its_report_for_the_px4_flight(tmp_path):
     html = out.read_text()
     assert html.startswith("<!doctype html>") and html.count("data:image/png;base64,") >= 4
     assert "<h2>Join</h2>" in html and "<h2>Roll authority</h2>" in html
+    assert "RLL_RATE_FF" not in html and "FW_RR_FF" in html  # ArduPlane's parameter has no place in a PX4 review
     rv = json.loads(out.with_suffix(".json").read_text())
     assert rv["fc_format"] == "ulog" and rv["autopilot"] == "px4" and rv["source"] == "cycle log"
     assert abs(rv["alignment"]["residual_s"]) < 0.010

@@ -182,6 +182,14 @@ def fig_roll_authority(rv: Review, f: Flight):
     ax.set_xlabel("airspeed, m/s")
     ax.set_ylabel("roll-rate gain, deg/s per deg", color="tab:red")
     ax2 = ax.twinx()
+    if rv.autopilot == "px4":  # no single feed-forward parameter to imply (docs/review.md, FW_RR_FF)
+        ax2.plot(v, [g.output_gain for g in good], "s--", color="tab:blue", label="deg/s per full output")
+        ax2.set_ylim(0, 1.3 * max([g.output_gain for g in good] + [0.0]) or 1.0)
+        ax2.set_ylabel("roll rate per full output, deg/s", color="tab:blue")
+        ax2.legend(loc="lower right", fontsize=8)
+        ax.set_title(f"gain per band (bands with R2 >= {MIN_FIT_R2})")
+        fig.tight_layout()
+        return fig
     ax2.plot(v, [g.ff_ardupilot for g in good], "s--", color="tab:blue", label="RLL_RATE_FF implied")
     top = max([g.ff_ardupilot for g in good] + [rv.fc_roll_ff if math.isfinite(rv.fc_roll_ff) else 0.0, 0.0])
     if math.isfinite(rv.fc_roll_ff):
@@ -312,15 +320,21 @@ def write_html(out: Path, rv: Review, f: Flight, fc: FcLog, cl: CycleLog | None,
     parts.append("<h2>Hysteresis loops</h2>")
     parts.append(f"<img src='data:image/png;base64,{png(fig_hysteresis(f))}'>")
     parts.append("<h2>Roll authority</h2>")
+    px4 = rv.autopilot == "px4"
     parts.append(_table(["airspeed band", "samples", "gain, deg/s per deg", "bias, deg/s", "R2",
-                         "deg/s per full output", "RLL_RATE_FF implied"],
+                         "deg/s per full output", *([] if px4 else ["RLL_RATE_FF implied"])],
                         [[g.band, g.n, _num(g.gain), _num(g.bias, "{:.2f}"), _num(g.r2, "{:.2f}"),
-                          _num(g.output_gain, "{:.1f}"), _num(g.ff_ardupilot)] for g in rv.roll_authority]))
-    parts.append(f"<p>Roll rate {rv.roll_lag_s * 1e3:.0f} ms after the "
-                 f"{'measured' if rv.roll_uses_measured_warp else 'commanded'} differential warp (the lag where "
-                 "they match best). The implied RLL_RATE_FF is the feed-forward that alone would give the fitted "
-                 "rate at the band's airspeed (ArduPlane: output = rate x FF x SCALING_SPEED / airspeed, full "
-                 "output 45); see docs/review.md for PX4's FW_RR_FF.</p>")
+                          _num(g.output_gain, "{:.1f}"), *([] if px4 else [_num(g.ff_ardupilot)])]
+                         for g in rv.roll_authority]))
+    lead = (f"<p>Roll rate {rv.roll_lag_s * 1e3:.0f} ms after the "
+            f"{'measured' if rv.roll_uses_measured_warp else 'commanded'} differential warp (the lag where they "
+            "match best). ")
+    if px4:
+        parts.append(lead + "PX4's FW_RR_FF acts through its control allocation: docs/review.md says how to set it "
+                     "from the roll rate per full output.</p>")
+    else:
+        parts.append(lead + "The implied RLL_RATE_FF is the feed-forward that alone would give the fitted rate at "
+                     "the band's airspeed (output = rate x FF x SCALING_SPEED / airspeed, full output 45).</p>")
     parts.append(f"<img src='data:image/png;base64,{png(fig_roll_authority(rv, f))}'>")
     parts.append("<h2>Link</h2>")
     ls = rv.link
