@@ -19,9 +19,10 @@ the same load), each with the defaults a user gets (no prior, no delay):
 
 Per log: held-out RMS of each seed (min, median, max), the spread (max / min), the default
 run's (seed 0) held-out against the best seed of the old code, the straight line's held-out
-RMS and the noise floor, and the wall time per fit (median). Writes every figure as JSON
-(``--json``, default ``benchmarks/results/identify-seeds.json``) after each log, so a run cut
-short keeps what it measured.
+RMS and the noise floor, the wall time per fit (median) and each fit's servo lag. Writes every
+figure as JSON (``--json``, default ``benchmarks/results/identify-seeds.json``) after each log,
+keyed by the sources the run imported (``stored.py``; ``results_page.py`` shows it and says when
+it is stale), so a run cut short keeps what it measured.
 Run: python benchmarks/bench_identify_seeds.py --baseline REV [--seeds 10] [--old-seeds-bench 10]
      [--sets sitl,bench,realdata] [--sitl-dir DIR] [--realdata DIR] [--json PATH]
 """
@@ -46,6 +47,7 @@ import bench_identify as BI  # noqa: E402
 from _common import table  # noqa: E402
 from bench_realdata_identify import default_dir as realdata_dir  # noqa: E402
 from bench_realdata_identify import load as load_realdata  # noqa: E402
+from stored import keyed, write_json  # noqa: E402
 
 from warpbridge.bridge.commands.logfile import read_log  # noqa: E402
 from warpbridge.model import identify as current  # noqa: E402
@@ -61,6 +63,7 @@ SITL_PLANTS = ("bouc-wen", "sheath")
 SITL_SCENARIOS = ("random", "steps", "sweep")
 SITL_SEEDS = (0, 1)
 BENDS = (0, 60, 120, 180, 240)
+SUBPROCESS = ("warpbridge.bridge.cli",)  # record_sitl's `warpbridge sitl` runs
 AMPLITUDES = (50, 60, 70)
 
 
@@ -82,7 +85,8 @@ def fit_once(ident, t, u, w, seed: int, others) -> dict:
     r = ident.identify(t, u, w, seed=seed)
     wall = time.perf_counter() - t0
     return {"seed": seed, "heldout_rms_deg": r.heldout_rms, "train_rms_deg": r.train_rms, "seconds": wall,
-            "other_rms_deg": other_rms(r.params, others) if others else None, "params": r.params.to_dict()}
+            "other_rms_deg": other_rms(r.params, others) if others else None, "params": r.params.to_dict(),
+            "servo_tau_s": getattr(r, "servo_tau_s", None)}
 
 
 def line_other(t, u, w, others) -> tuple[float, float | None]:
@@ -93,6 +97,11 @@ def line_other(t, u, w, others) -> tuple[float, float | None]:
     held = rms(c0 + c1 * u[~train] - w[~train])
     oth = float(np.mean([rms(c0 + c1 * uo - wo) for uo, wo in others])) if others else None
     return held, oth
+
+
+def plain(out: dict) -> dict:
+    """``out`` with numpy scalars as Python numbers, ready for ``write_json``."""
+    return json.loads(json.dumps(out, default=float))
 
 
 def summary(runs: list[dict], key: str = "heldout_rms_deg") -> dict:
@@ -214,8 +223,10 @@ def main() -> None:
             f"({args.baseline or 'none'}) seeds per set {old_seeds}; kept from {args.resume or '-'}, the versions not "
             f"run filled in from {args.merge or '-'}")
     print(head, flush=True)
-    out = {"format": "warpbridge-bench-identify-seeds/1", "baseline": args.baseline, "seeds": args.seeds,
-           "old_seeds": old_seeds, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "logs": []}
+    baseline = args.baseline or (prev.get("baseline") if args.merge and "old" not in versions else None)
+    out = {"format": "warpbridge-bench-identify-seeds/1", "baseline": baseline, "seeds": args.seeds,
+           "old_seeds": old_seeds, "merged_from": args.merge, "resumed_from": args.resume,
+           "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "logs": []}
     sets = args.sets.split(",")
     logs: list[dict] = []
     for s in sets:
@@ -266,8 +277,7 @@ def main() -> None:
                                                  "train_rms_deg": None, "seconds": None, "other_rms_deg": None})
         summarise(rec, bool(lg["others"]))
         out["logs"].append(rec)
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+        write_json(Path(args.json), keyed(plain(out), also=SUBPROCESS))
         row = table_row(rec, shown)
         print("  ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in row), flush=True)
     head = ["set", "log", "noise", "line held-out"]
@@ -279,7 +289,7 @@ def main() -> None:
     print(table([table_row(rec, shown) for rec in out["logs"]], head))
     print_summary(out, shown)
     out["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+    write_json(Path(args.json), keyed(plain(out), also=SUBPROCESS))
     print(f"load average at end {os.getloadavg()[0]:.1f}; wrote {args.json}")
 
 
