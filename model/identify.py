@@ -28,10 +28,11 @@ fixed by the warp and the shape parameters (A, n, b). So:
    ``servo lag``: the servo's position loop smooths what the command does faster than it (a closed
    loop's feed-forward jumps at each setpoint step); the model fed the raw command reverses where the
    tendon never went. The design's best shapes are solved again with the input through first-order lags
-   (``lag_scan``); the best lag, when it lowers their input-side cost by ``LAG_GAIN``, is put in front of
-   the model once the model without it is final (steps 5-8): the design is solved again through the lag
-   and refined, with the model found without it as one more start, checked for a fold and against the
-   simpler models, and the lag is kept only when the result fits the training part better by
+   (``lag_scan``); the best lag, when it lowers their input-side cost by ``LAG_GAIN_SURE`` (or by
+   ``LAG_GAIN`` and a short refinement of the final model without it fits better through the lag), is put
+   in front of the model once the model without it is final (steps 5-8): the design is solved again
+   through the lag and refined, with the model found without it as one more start, checked for a fold and
+   against the simpler models, and the lag is kept only when the result fits the training part better by
    ``DELAY_GAIN`` and by what the information criterion asks of one more parameter on the log's effective
    samples (``lag_pays``; ``servo_tau_s``; not with a delay scan, whose delay stands for it).
 5. ``local refine``: the distinct best shapes, with the straight line and the
@@ -168,7 +169,11 @@ GLOBAL_SEEDED = 10  # the design's best starts placed in its first population, b
 POPSIZE_GLOBAL = 110  # its population (ten per parameter of a two-sided wing)
 MAXITER_GLOBAL = 150  # generations of the escalation's global search at most (``model.ident_global``)
 LAG_GRID_S = (0.005, 0.01, 0.02, 0.03, 0.05, 0.08)  # servo lags the scan tries (s)
-LAG_GAIN = 0.1  # a lag is tried when it lowers the design's best input-side cost by this share of the no-lag cost
+LAG_GAIN = 0.1  # a lag is proposed when it lowers the design's best input-side cost by this share of the no-lag's
+# ... and searched at once when by this share: a closed loop's jumps through the servo leave 0.17-0.39 of the
+# cost on the SITL's logs; a smaller gain (0.6-0.8 left on bench logs, a sine's with no lag at all 0.69) is
+# first checked by a short refinement of the model without it, with and without the lag (``lag_checks``)
+LAG_GAIN_SURE = 0.5
 LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves at each lag
 # the search trace's record of the fold and simpler-model steps: the lag's pass writes its own, kept with it
 LAG_PASS_FIELDS = ("fold_deg", "working_range_deg", "fold_outcome", "fold_train_rms", "line_restart", "kept_start")
@@ -406,19 +411,32 @@ def lag_pays(rms_without: float, rms_with: float, residuals: np.ndarray) -> bool
     return bool(n_eff * math.log(c0 / c1) > math.log(n_eff))
 
 
-def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> float:
+def lag_checks(data: LogData, theta: np.ndarray, lag: float) -> bool:
+    """Does a short refinement (``DELAY_SCAN_ITER`` steps on the search's path) from the model without the lag
+    fit the training part better by ``DELAY_GAIN`` through the lag than without it?"""
+    lo, hi = data.bounds
+    costs = []
+    for x in (data.x_hat, data.with_lag(lag).x_hat):
+        obj = Objective(FitPath.build(x, data.w_hat, data.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS), data.norm.c)
+        costs.append(refine(obj, theta, lo, hi, DELAY_SCAN_ITER, tol=FIT_TOL_Z).cost)
+    log.info("servo lag %.1f ms, a short refinement: cost %.4g without it, %.4g with it", 1e3 * lag, *costs)
+    return bool(costs[1] <= (1.0 - DELAY_GAIN) * costs[0])
+
+
+def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[float, float]:
     """Step 4's servo lag (s): the first-order lag in front of the model under which the design's best shapes
     explain the input best. The servo's position loop smooths what the command does faster than it (a
     closed loop's feed-forward jumps at every step of the setpoint): the model fed the raw command reverses
     where the tendon never went, and every loop after it is wrong. The input-side cost of the ``LAG_SHAPES``
     best distinct shapes at no lag is solved again at each lag of ``LAG_GRID_S`` (up to ``max_lag_s`` and a
     twentieth of the training part); a parabola through the best and its neighbours places it between grid
-    points. No lag unless the best lowers the cost by ``LAG_GAIN``; the forward error confirms it later."""
+    points. Returns (lag, cost with it / cost without); no lag unless the best lowers the cost by
+    ``LAG_GAIN``; the forward error decides later."""
     t, n_end = data.t, data.n_train_end
     dur = float(t[n_end - 1] - t[0]) if n_end > 1 else 0.0
     grid = [d for d in LAG_GRID_S if d <= max_lag_s and d <= 0.05 * dur]
     if not grid:
-        return 0.0
+        return 0.0, 1.0
     lo, hi = design.shape_bounds(data.two_sided)
 
     def cost_at(lag: float, shapes: np.ndarray) -> np.ndarray:
@@ -429,15 +447,16 @@ def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> float:
     c0 = cost_at(0.0, S)
     keep = design.distinct_best(S, c0, LAG_SHAPES, lo, hi)
     if keep.size == 0:
-        return 0.0
+        return 0.0, 1.0
     shapes = S[keep]
     tried = {0.0: float(np.min(c0[keep]))}
     for lag in grid:
         c = cost_at(lag, shapes)
         tried[lag] = float(np.min(c)) if np.isfinite(c).any() else math.inf
     best = min(tried, key=lambda k: tried[k])
-    if best <= 0 or not tried[best] <= (1.0 - LAG_GAIN) * tried[0.0]:
-        return 0.0
+    ratio = tried[best] / tried[0.0] if tried[0.0] > 0 else 1.0
+    if best <= 0 or not ratio <= 1.0 - LAG_GAIN:
+        return 0.0, 1.0
     ds = sorted(tried)
     k = ds.index(best)
     if k + 1 < len(ds):  # the vertex of the parabola through the best lag and its two neighbours
@@ -448,7 +467,7 @@ def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> float:
             best = float(min(max(v, 0.5 * (d0 + d1)), 0.5 * (d1 + d2)))
     log.info("servo lag %.1f ms: the design's best input-side cost %.3g at no lag, %.3g at the scan's best",
              1e3 * best, tried[0.0], min(tried.values()))
-    return best
+    return best, ratio
 
 
 # ---- step 5: local refinement ------------------------------------------------------------------
@@ -805,7 +824,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     S, labels = start_design(data, seed, prior)
     keep_starts = max(1, RANKED_PER_POPSIZE * popsize)
     # with a delay scan asked for, the delay stands for the servo, link and sensor lag together
-    lag = lag_scan(data, S, max_lag_s) if max_lag_s > 0 and max_delay_s <= 0 else 0.0
+    lag, lag_ratio = lag_scan(data, S, max_lag_s) if max_lag_s > 0 and max_delay_s <= 0 else (0.0, 1.0)
     starts = linear_solve(data, S, labels, keep_starts)
     trace.design_size = int(S.shape[0])
     if progress:
@@ -857,6 +876,9 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         best = escalate(data, best, first, starts, seed, trace, search, progress)
     best = fold_check(data, best, starts, trace, search)
     best = simpler_models(data, best, starts, trace, search, progress)
+    if lag > 0 and lag_ratio > 1.0 - LAG_GAIN_SURE and not lag_checks(data, best.theta, lag):
+        trace.lag_s = lag  # proposed, and refused by the short refinement
+        lag = 0.0
     if lag > 0:  # the scan's servo lag: the design solved through it and refined, the model without it a start
         plain, data = data, data.with_lag(lag)
         kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}  # what the model without the lag did
