@@ -48,6 +48,20 @@ def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int:
         return proc.wait(5)
 
 
+def stop_flight(bridge, err, emu, gcs, autopilot) -> None:
+    """Tear a real-autopilot flight down, whatever of it got started: the bridge process, its stderr file, the
+    servo emulator, the ground station, then the autopilot."""
+    if bridge is not None:
+        stop_process(bridge)
+    if err is not None:
+        err.close()
+    if emu is not None:
+        emu.stop()
+    if gcs is not None:
+        gcs.close()
+    autopilot.stop()
+
+
 def sitl_bridge_toml(connection: str, servo_backend: str, wings: str) -> str:
     """A bridge config for the real-autopilot tests: 50 Hz servo outputs asked, a 100 Hz loop, 10 Hz
     telemetry, no sensor, then the wings' tables (``sitl_wing_toml``)."""

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_process, wait_for
+from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_flight, stop_process, wait_for
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 from warpbridge.sitl.maestro_emu import MaestroEmulator
@@ -385,7 +385,7 @@ def fly(folder: Path, sweep_s: float = 36.0) -> dict[str, Path]:
     from warpbridge.sitl.wing import WingSpec
 
     ap = ArduPlane(folder, FLIGHT_PARAMS)
-    gcs = bridge = emu = None
+    gcs = bridge = emu = err = None
     try:
         ap.wait_listening()
         gcs = FlightGcs(ap.gcs_port, folder / "flight.tlog")
@@ -429,14 +429,7 @@ def fly(folder: Path, sweep_s: float = 36.0) -> dict[str, Path]:
         gcs.stick = 1500
         time.sleep(1.0)
     finally:
-        if bridge is not None:
-            stop_process(bridge)
-            err.close()
-        if emu is not None:
-            emu.stop()
-        if gcs is not None:
-            gcs.close()
-        ap.stop()
+        stop_flight(bridge, err, emu, gcs, ap)
     bins = sorted((folder / "logs").glob("*.BIN"))
     assert bins, f"no DataFlash log in {folder / 'logs'}"
     files = {"bin": bins[-1], "tlog": folder / "flight.tlog", "cycles": folder / "cycles.csv"}

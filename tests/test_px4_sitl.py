@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_process, wait_for
+from helpers import GroundStation, sitl_bridge_toml, sitl_wing_toml, stop_flight, stop_process, wait_for
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 
@@ -377,15 +377,7 @@ def fly(folder: Path, sweep_s: float = 30.0, small_log: bool = False) -> dict[st
         time.sleep(1.0)
         assert gcs.altitude > 5.0, f"the airplane came down: {gcs.altitude:.1f} m"
     finally:
-        if bridge is not None:
-            stop_process(bridge)
-        if err is not None:
-            err.close()
-        if emu is not None:
-            emu.stop()
-        if gcs is not None:
-            gcs.close()
-        ap.stop()
+        stop_flight(bridge, err, emu, gcs, ap)
     ulgs = sorted((folder / "log").rglob("*.ulg"))
     assert ulgs, f"no .ulg in {folder / 'log'}: {ap.log_path.read_text(errors='replace')[-2000:]}"
     files = {"ulg": ulgs[-1], "cycles": folder / "cycles.csv"}
