@@ -437,7 +437,7 @@ class Bridge:
             self.telemetry.clear(back)
             self.telemetry.status(SEV_WARNING, f"WB {name} sensor {problem}: ff only", key=key)
             return None
-        keys = self._sensor_keys.pop(name, set())
+        keys = self._sensor_keys.pop(name, ())  # the control loop's path: nothing built when the sensor is good
         if any(self.telemetry.active(k) for k in keys):
             # keyed too, so a flapping sensor reports "back" at most once per key hold-off
             for k in keys:
