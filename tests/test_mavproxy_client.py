@@ -60,8 +60,12 @@ class MavProxy:
         self.proc.stdin.flush()
 
     def close(self) -> None:
+        """Stop MAVProxy as a user at its prompt would: ``exit``, then the end of its input, which
+        the prompt is blocked reading; killed only if it does not stop."""
         try:
             self.command("exit")
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()
             self.proc.wait(10)
         except (OSError, subprocess.TimeoutExpired):
             self.proc.kill()
