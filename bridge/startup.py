@@ -70,9 +70,10 @@ def load_model_file(config: Config) -> ModelFile:
     if mf.effects.delay_s > 0:  # identify's transport delay: the rig's servo, link and sensor lag
         log.info("model: the warp follows the tendon %.0f ms late (transport delay); the feed-forward inverts "
                  "the hysteresis only, the PI trim sees the delay", 1e3 * mf.effects.delay_s)
-    if mf.effects.servo_tau_s > 0:  # identify's servo lag: the tendon follows the command through it
-        log.info("model: the servo follows its command with a %.0f ms lag; the feed-forward inverts the hysteresis "
-                 "only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s)
+    if mf.effects.has_servo:  # identify's servo: the tendon follows the command through its position loop
+        log.info("model: the servo follows its command with a %.0f ms lag (at most %.3g mm/s); the feed-forward "
+                 "inverts the hysteresis only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s,
+                 mf.effects.servo_rate_mm_s)
     return mf
 
 

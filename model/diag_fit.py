@@ -92,9 +92,9 @@ BOUND_TOL = 0.03  # of a box's width: a fitted coordinate this close to an edge 
 BRENT_MAX_ITER = 30  # a one-parameter search's iterations (``Problem._brent``)
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
-INPUT_FIELDS = ("delay_s", "servo_tau_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm", "pretension_gain",
-                "pretension_loop", "friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm",
-                "friction_pivot")
+INPUT_FIELDS = ("delay_s", "servo_tau_s", "servo_rate_mm_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm",
+                "pretension_gain", "pretension_loop", "friction_scale", "capstan_pull_ratio", "capstan_release_ratio",
+                "capstan_zero_mm", "friction_pivot")
 
 
 # ---- the train / score split -------------------------------------------------------------------

@@ -11,7 +11,8 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | name        | parameters                     | operator                                             |
 |-------------|--------------------------------|------------------------------------------------------|
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
-| servo_lag   | servo_tau_s                    | first-order lag of the servo's position loop         |
+| servo_lag   | servo_tau_s, servo_rate_mm_s   | the servo's position loop: a first-order approach    |
+|             |                                | capped at its rated speed, each row's command held   |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
 | friction    | friction_scale, friction_pivot | the loop widens or narrows about a level inside it,  |
@@ -97,8 +98,8 @@ RIG_EFFECTS: tuple[str, ...] = ("servo_lag",)
 # effect name -> (field names, neutral values, physical meaning)
 EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
     "delay": (("delay_s",), (0.0,), "pure transport delay between command and tendon motion"),
-    "servo_lag": (("servo_tau_s",), (0.0,), "the servo's position loop: a first-order lag between command and "
-                  "tendon travel"),
+    "servo_lag": (("servo_tau_s", "servo_rate_mm_s"), (0.0, math.inf),
+                  "the servo's position loop: a first-order approach to each command, capped at its rated speed"),
     "rate_limit": (("rate_mm_s",), (math.inf,), "servo slew-rate limit"),
     "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
     "friction": (("friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm",
@@ -126,6 +127,7 @@ class Effects:
 
     delay_s: float = 0.0
     servo_tau_s: float = 0.0  # the servo's position loop, a first-order lag (part of the rig, found by identify)
+    servo_rate_mm_s: float = math.inf  # the servo's rated speed, capping that approach (mm/s of tendon)
     rate_mm_s: float = math.inf
     backlash_mm: float = 0.0
     friction_scale: float = 1.0
@@ -151,8 +153,8 @@ class Effects:
             object.__setattr__(self, f.name, float(v))
         if self.delay_s < 0 or self.backlash_mm < 0 or self.sensor_tau_s < 0 or self.servo_tau_s < 0:
             raise ValueError("delay, servo lag, backlash and sensor lag cannot be negative")
-        if not self.rate_mm_s > 0:
-            raise ValueError("rate limit must be positive")
+        if not self.rate_mm_s > 0 or not self.servo_rate_mm_s > 0:
+            raise ValueError("rate limit and servo speed must be positive")
         if not self.friction_scale > 0 or not self.pretension_gain > 0:
             raise ValueError("friction scale and pre-tension gain must be positive")
         if not self.drift_tau_s > 0:
@@ -178,6 +180,11 @@ class Effects:
     def sensor_taus(self) -> tuple[float, ...]:
         """Time constants of the sensor's lags in cascade (empty: no lag)."""
         return tuple(tau for tau in (self.sensor_tau_s, self.sensor_tau_s * self.sensor_stage_ratio) if tau > 0)
+
+    @property
+    def has_servo(self) -> bool:
+        """True when the command passes through the servo's position loop (a lag, a rated speed or both)."""
+        return self.servo_tau_s > 0 or math.isfinite(self.servo_rate_mm_s)
 
     @property
     def has_capstan(self) -> bool:
@@ -448,6 +455,40 @@ def lagged(t, w, tau, y0):
     return out
 
 
+@njit(cache=True)
+def servo_move(y, c, dt, tau, rate):
+    """Servo position after ``dt`` s holding command ``c`` from ``y``: it approaches c as a first-order lag of
+    time constant ``tau``, its speed capped at ``rate`` (exactly: at the cap until within rate * tau of c, then
+    the exponential). ``tau`` 0: at the rate straight to c (there at once without a cap)."""
+    e = c - y
+    if tau <= 0.0:
+        step = rate * dt
+        return c if abs(e) <= step else y + math.copysign(step, e)
+    if abs(e) > rate * tau:
+        t_cap = (abs(e) - rate * tau) / rate
+        if t_cap >= dt:
+            return y + math.copysign(rate * dt, e)
+        e = math.copysign(rate * tau, e)
+        dt -= t_cap
+    return c - e * math.exp(-dt / tau)
+
+
+@njit(cache=True)
+def servo_follow(t, u, tau, rate, y0):
+    """The servo's travel at each row for commands u (``servo_move``). Each row's command is held until the next
+    row, and a row's measurement sees only the commands before it: the bridge reads the sensor, then sets the
+    servo, and any servo board holds a pulse until the next."""
+    n = t.shape[0]
+    out = np.empty(n)
+    y = y0
+    if n:
+        out[0] = y
+    for k in range(1, n):
+        y = servo_move(y, u[k - 1], t[k] - t[k - 1], tau, rate)
+        out[k] = y
+    return out
+
+
 def sensor_filtered(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The warp sensor's lag (one or two first-order stages in cascade), each starting settled on w[0]."""
     y = np.ascontiguousarray(w, dtype=np.float64)
@@ -462,8 +503,8 @@ def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: 
     x = np.ascontiguousarray(u, dtype=np.float64)
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
-    if eff.servo_tau_s > 0:
-        x = lagged(t, x, eff.servo_tau_s, float(x[0]))
+    if eff.has_servo:
+        x = servo_follow(t, x, eff.servo_tau_s, eff.servo_rate_mm_s, float(x[0]))
     if math.isfinite(eff.rate_mm_s):
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.has_slack:

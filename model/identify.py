@@ -25,16 +25,18 @@ fixed by the warp and the shape parameters (A, n, b). So:
    and, for half of the starts, at the warp's own (a closed loop's command
    reacts to the sensor's noise, so its turns are not the warp's), and in each
    run the warp is replaced by its least-squares monotone fit.
-   ``servo lag``: the servo's position loop smooths what the command does faster than it (a closed
-   loop's feed-forward jumps at each setpoint step); the model fed the raw command reverses where the
-   tendon never went. The design's best shapes are solved again with the input through first-order lags
-   (``lag_scan``); the best lag, when it lowers their input-side cost by ``LAG_GAIN_SURE`` (or by
-   ``LAG_GAIN`` and a short refinement of the final model without it fits better through the lag), is put
-   in front of the model once the model without it is final (steps 5-8): the design is solved again
-   through the lag and refined, with the model found without it as one more start, checked for a fold and
-   against the simpler models, and the lag is kept only when the result fits the training part better by
-   ``DELAY_GAIN`` and by what the information criterion asks of one more parameter on the log's effective
-   samples (``lag_pays``; ``servo_tau_s``; not with a delay scan, whose delay stands for it).
+   ``servo``: the servo's position loop smooths what the command does faster than it (a closed
+   loop's feed-forward jumps at each setpoint step) and crosses a large jump at its rated speed; the
+   model fed the raw command reverses where the tendon never went. The design's best shapes are solved
+   again with the input through first-order lags, then under speed caps (``lag_scan``; each row's
+   command held until the next, ``effects.servo_follow``); the best servo, when it lowers their
+   input-side cost by ``LAG_GAIN_SURE`` (or by ``LAG_GAIN`` and a short refinement of the final model
+   without it fits better through it), is put in front of the model once the model without it is final
+   (steps 5-8): the design is solved again through it and refined, with the model found without it as
+   one more start, checked for a fold and against the simpler models, and the servo is kept only when
+   the result fits the training part better by ``DELAY_GAIN`` and by what the information criterion asks
+   of its parameters on the log's effective samples (``lag_pays``; ``servo_tau_s``, ``servo_rate_mm_s``;
+   not with a delay scan, whose delay stands for it).
 5. ``local refine``: the distinct best shapes, with the straight line and the
    quadratic backbone, are scored on the forward output error (warp simulated
    from the logged tendon input, every stretch started from the state its own
@@ -91,7 +93,7 @@ import numpy as np
 
 from warpbridge.model import ident_design as design
 from warpbridge.model.boucwen import BoucWenParams, forward
-from warpbridge.model.effects import delayed, lagged
+from warpbridge.model.effects import delayed, servo_follow
 from warpbridge.model.ident_global import global_search
 from warpbridge.model.ident_path import (
     BUDGET_PER_POINT,
@@ -175,6 +177,9 @@ LAG_GAIN = 0.1  # a lag is proposed when it lowers the design's best input-side 
 # first checked by a short refinement of the model without it, with and without the lag (``lag_checks``)
 LAG_GAIN_SURE = 0.5
 LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves at each lag
+# speed caps the scan tries, per the fastest the lagged command asks for: a servo crosses a large jump of the
+# command at its rated speed (a hobby servo's 0.1 s per 60 deg on a 10 mm horn is about 100 mm/s of tendon)
+RATE_FRACTIONS = (0.7, 0.5, 0.35, 0.25, 0.18, 0.12)
 # the search trace's record of the fold and simpler-model steps: the lag's pass writes its own, kept with it
 LAG_PASS_FIELDS = ("fold_deg", "working_range_deg", "fold_outcome", "fold_train_rms", "line_restart", "kept_start")
 LINE_ZSAT = -3.5  # log10 of the state's saturation (normalised) of the straight-line and quadratic starts
@@ -217,6 +222,32 @@ def check_log(t: np.ndarray, u: np.ndarray, w: np.ndarray, min_samples: int = 50
                          f"(correlation {c:.2f})")
 
 
+@dataclass(frozen=True)
+class Servo:
+    """The servo's position loop in front of the model (``effects.servo_follow``): a first-order lag of
+    ``tau_s`` capped at ``rate_mm_s`` (inf: no cap); the default passes the command through as logged."""
+
+    tau_s: float = 0.0
+    rate_mm_s: float = math.inf
+
+    @property
+    def active(self) -> bool:
+        return self.tau_s > 0 or math.isfinite(self.rate_mm_s)
+
+    @property
+    def parameters(self) -> int:
+        """How many parameters it adds to the model (for the information criterion)."""
+        return int(self.tau_s > 0) + int(math.isfinite(self.rate_mm_s))
+
+    def apply(self, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The tendon travel the servo gives for commands u (u itself when inactive)."""
+        return servo_follow(t, u, self.tau_s, self.rate_mm_s, float(u[0])) if self.active else u
+
+    def __str__(self) -> str:
+        lag = f"{1e3 * self.tau_s:.1f} ms"
+        return lag + (f" capped at {self.rate_mm_s:.3g} mm/s" if math.isfinite(self.rate_mm_s) else "")
+
+
 @dataclass
 class LogData:
     """One log ready to fit: raw and normalised arrays, the split and the noise floor."""
@@ -233,18 +264,18 @@ class LogData:
     train_mask: np.ndarray
     held_mask: np.ndarray
     noise: float
-    lag_s: float = 0.0  # the servo's lag the model's input passes through (``lag_scan``)
-    x: np.ndarray | None = field(default=None, repr=False)  # the input the model sees: u through the lag (mm)
+    servo: Servo = Servo()  # the servo the model's input passes through (``lag_scan``)
+    x: np.ndarray | None = field(default=None, repr=False)  # the input the model sees: u through the servo (mm)
     x_hat: np.ndarray | None = field(default=None, repr=False)  # ... normalised
 
     def __post_init__(self) -> None:
         if self.x is None:
             self.x, self.x_hat = self.u, self.u_hat
 
-    def with_lag(self, lag_s: float) -> LogData:
-        """The same log with the model's input passed through a servo lag of ``lag_s`` (0: none)."""
-        x = lagged(self.t, self.u, lag_s, float(self.u[0])) if lag_s > 0 else self.u
-        return replace(self, lag_s=float(lag_s), x=x, x_hat=(x - self.norm.uc) / self.norm.us)
+    def with_servo(self, servo: Servo) -> LogData:
+        """The same log with the model's input passed through ``servo``."""
+        x = servo.apply(self.t, self.u)
+        return replace(self, servo=servo, x=x, x_hat=(x - self.norm.uc) / self.norm.us)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -400,74 +431,101 @@ def simple_theta(data: LogData, alpha: np.ndarray) -> np.ndarray:
     return th
 
 
-def lag_pays(rms_without: float, rms_with: float, residuals: np.ndarray) -> bool:
-    """Does the servo lag earn its parameter? The training cost must fall by ``DELAY_GAIN`` and by more than
-    the Bayesian information criterion asks of one more parameter on the residuals' effective sample count
-    (n_eff ln(c0 / c1) > ln n_eff): a short log with few independent samples needs a clear gain."""
+def lag_pays(rms_without: float, rms_with: float, residuals: np.ndarray, parameters: int = 1) -> bool:
+    """Does the servo earn its ``parameters``? The training cost must fall by ``DELAY_GAIN`` and by more than
+    the Bayesian information criterion asks of them on the residuals' effective sample count
+    (n_eff ln(c0 / c1) > k ln n_eff): a short log with few independent samples needs a clear gain."""
     c0, c1 = rms_without ** 2, rms_with ** 2
     if not (c1 > 0 and c1 <= (1.0 - DELAY_GAIN) * c0):
         return c1 == 0.0 < c0
     n_eff = max(effective_samples(residuals), 2.0)
-    return bool(n_eff * math.log(c0 / c1) > math.log(n_eff))
+    return bool(n_eff * math.log(c0 / c1) > max(parameters, 1) * math.log(n_eff))
 
 
-def lag_checks(data: LogData, theta: np.ndarray, lag: float) -> bool:
-    """Does a short refinement (``DELAY_SCAN_ITER`` steps on the search's path) from the model without the lag
-    fit the training part better by ``DELAY_GAIN`` through the lag than without it?"""
+def lag_checks(data: LogData, theta: np.ndarray, servo: Servo) -> bool:
+    """Does a short refinement (``DELAY_SCAN_ITER`` steps on the search's path) from the model without the servo
+    fit the training part better by ``DELAY_GAIN`` through it than without it?"""
     lo, hi = data.bounds
     costs = []
-    for x in (data.x_hat, data.with_lag(lag).x_hat):
+    for x in (data.x_hat, data.with_servo(servo).x_hat):
         obj = Objective(FitPath.build(x, data.w_hat, data.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS), data.norm.c)
         costs.append(refine(obj, theta, lo, hi, DELAY_SCAN_ITER, tol=FIT_TOL_Z).cost)
-    log.info("servo lag %.1f ms, a short refinement: cost %.4g without it, %.4g with it", 1e3 * lag, *costs)
+    log.info("servo %s, a short refinement: cost %.4g without it, %.4g with it", servo, *costs)
     return bool(costs[1] <= (1.0 - DELAY_GAIN) * costs[0])
 
 
-def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[float, float]:
-    """Step 4's servo lag (s): the first-order lag in front of the model under which the design's best shapes
-    explain the input best. The servo's position loop smooths what the command does faster than it (a
-    closed loop's feed-forward jumps at every step of the setpoint): the model fed the raw command reverses
-    where the tendon never went, and every loop after it is wrong. The input-side cost of the ``LAG_SHAPES``
-    best distinct shapes at no lag is solved again at each lag of ``LAG_GRID_S`` (up to ``max_lag_s`` and a
-    twentieth of the training part); a parabola through the best and its neighbours places it between grid
-    points. Returns (lag, cost with it / cost without); no lag unless the best lowers the cost by
-    ``LAG_GAIN``; the forward error decides later."""
+def parabola_vertex(tried: dict[float, float], best: float) -> float:
+    """Where the parabola through the grid point ``best`` and its two neighbours in ``tried`` ({point: cost})
+    has its minimum, kept within half a step of ``best``; ``best`` itself at the grid's ends."""
+    ds = sorted(tried)
+    k = ds.index(best)
+    if not 0 < k < len(ds) - 1:
+        return best
+    (d0, d1, d2), (f0, f1, f2) = ds[k - 1:k + 2], (tried[d] for d in ds[k - 1:k + 2])
+    den = (d1 - d0) * (f1 - f2) - (d1 - d2) * (f1 - f0)
+    if den == 0 or not all(map(math.isfinite, (f0, f1, f2))):
+        return best
+    v = d1 - 0.5 * ((d1 - d0) ** 2 * (f1 - f2) - (d1 - d2) ** 2 * (f1 - f0)) / den
+    return float(min(max(v, 0.5 * (d0 + d1)), 0.5 * (d1 + d2)))
+
+
+def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, float]:
+    """Step 4's servo: the position loop in front of the model (a first-order lag, capped at a rated speed)
+    under which the design's best shapes explain the input best. The servo smooths what the command does
+    faster than it (a closed loop's feed-forward jumps at every step of the setpoint) and a large jump it
+    crosses at its rated speed: the model fed the raw command reverses where the tendon never went, and every
+    loop after it is wrong. The input-side cost of the ``LAG_SHAPES`` best distinct shapes at no lag is solved
+    again at each lag of ``LAG_GRID_S`` (up to ``max_lag_s`` and a twentieth of the training part), then at the
+    best lag under speed caps of ``RATE_FRACTIONS`` of the fastest the lagged command asks for; a cap that
+    lowers the cost by ``LAG_GAIN`` is kept and the lags are scanned again under it. A parabola through the
+    best lag and its neighbours places it between grid points (the cap likewise, in its logarithm). Returns
+    (servo, cost with it / cost without); no servo unless it lowers the cost by ``LAG_GAIN``; the forward
+    error decides later."""
     t, n_end = data.t, data.n_train_end
     dur = float(t[n_end - 1] - t[0]) if n_end > 1 else 0.0
     grid = [d for d in LAG_GRID_S if d <= max_lag_s and d <= 0.05 * dur]
     if not grid:
-        return 0.0, 1.0
+        return Servo(), 1.0
     lo, hi = design.shape_bounds(data.two_sided)
 
-    def cost_at(lag: float, shapes: np.ndarray) -> np.ndarray:
-        d = data.with_lag(lag)
+    def cost_at(servo: Servo, shapes: np.ndarray) -> np.ndarray:
+        d = data.with_servo(servo)
         wp = design.WarpPath.build(d.x_hat, d.w_hat, n_end, d.noise / d.norm.ws, "input")
         return design.InputSide(wp, d.norm.c).solve(shapes).cost
 
-    c0 = cost_at(0.0, S)
+    c0 = cost_at(Servo(), S)
     keep = design.distinct_best(S, c0, LAG_SHAPES, lo, hi)
     if keep.size == 0:
-        return 0.0, 1.0
+        return Servo(), 1.0
     shapes = S[keep]
-    tried = {0.0: float(np.min(c0[keep]))}
-    for lag in grid:
-        c = cost_at(lag, shapes)
-        tried[lag] = float(np.min(c)) if np.isfinite(c).any() else math.inf
-    best = min(tried, key=lambda k: tried[k])
-    ratio = tried[best] / tried[0.0] if tried[0.0] > 0 else 1.0
-    if best <= 0 or not ratio <= 1.0 - LAG_GAIN:
-        return 0.0, 1.0
-    ds = sorted(tried)
-    k = ds.index(best)
-    if k + 1 < len(ds):  # the vertex of the parabola through the best lag and its two neighbours
-        (d0, d1, d2), (f0, f1, f2) = ds[k - 1:k + 2], (tried[d] for d in ds[k - 1:k + 2])
-        den = (d1 - d0) * (f1 - f2) - (d1 - d2) * (f1 - f0)
-        if den != 0 and all(map(math.isfinite, (f0, f1, f2))):
-            v = d1 - 0.5 * ((d1 - d0) ** 2 * (f1 - f2) - (d1 - d2) ** 2 * (f1 - f0)) / den
-            best = float(min(max(v, 0.5 * (d0 + d1)), 0.5 * (d1 + d2)))
-    log.info("servo lag %.1f ms: the design's best input-side cost %.3g at no lag, %.3g at the scan's best",
-             1e3 * best, tried[0.0], min(tried.values()))
-    return best, ratio
+    none = float(np.min(c0[keep]))
+
+    def lags_at(rate: float) -> dict[float, float]:
+        tried = {0.0: none} if math.isinf(rate) else {}
+        for lag in grid if math.isinf(rate) else [0.0, *grid]:
+            c = cost_at(Servo(lag, rate), shapes)
+            tried[lag] = float(np.min(c)) if np.isfinite(c).any() else math.inf
+        return tried
+
+    rate, tried = math.inf, lags_at(math.inf)
+    lag = min(tried, key=lambda k: tried[k])
+    fastest = float(np.max(np.abs(np.diff(Servo(lag).apply(t[:n_end], data.u[:n_end]))) / np.diff(t[:n_end])))
+    if fastest > 0:
+        by_rate = {math.log(f * fastest): float(np.min(cost_at(Servo(lag, f * fastest), shapes)))
+                   for f in RATE_FRACTIONS}
+        best_log = min(by_rate, key=lambda k: by_rate[k])
+        if by_rate[best_log] <= (1.0 - LAG_GAIN) * tried[lag]:
+            by_rate[math.log(fastest)] = tried[lag]  # the cap the command never reaches: none
+            rate = math.exp(parabola_vertex(by_rate, best_log))
+            tried = lags_at(rate)
+            lag = min(tried, key=lambda k: tried[k])
+    servo = Servo(parabola_vertex(tried, lag), rate)
+    ratio = tried[lag] / none if none > 0 else 1.0
+    if not servo.active or not ratio <= 1.0 - LAG_GAIN:
+        return Servo(), 1.0
+    log.info("servo %s: the design's best input-side cost %.3g at no lag, %.3g at the scan's best", servo, none,
+             tried[lag])
+    return servo, ratio
 
 
 # ---- step 5: local refinement ------------------------------------------------------------------
@@ -502,7 +560,8 @@ class SearchTrace:
     global_generations: int = 0
     global_train_rms: tuple[float, float] | None = None  # training RMS (deg) from the design and from the search
     lag_s: float = 0.0  # the servo lag the scan proposed (s; 0: none), kept or not
-    lag_train_rms: tuple[float, float] | None = None  # training RMS (deg) without the lag and with it
+    lag_rate_mm_s: float = math.inf  # ... and the speed cap it proposed with it (inf: none)
+    lag_train_rms: tuple[float, float] | None = None  # training RMS (deg) without the servo and with it
 
 
 class Refiner:
@@ -647,14 +706,7 @@ def delay_scan(data: LogData, theta0: np.ndarray, max_delay_s: float, fold, prog
         progress("delay", len(grid), len(grid))
     if best_d <= 0 or best_cost > (1.0 - DELAY_GAIN) * cost0:
         return 0.0, th0, calls
-    ds = sorted(tried)
-    k = ds.index(best_d)
-    if k + 1 < len(ds):  # the vertex of the parabola through the best delay and its two neighbours
-        (d0, d1, d2), (f0, f1, f2) = ds[k - 1:k + 2], (tried[d] for d in ds[k - 1:k + 2])
-        den = (d1 - d0) * (f1 - f2) - (d1 - d2) * (f1 - f0)
-        if den != 0:
-            v = d1 - 0.5 * ((d1 - d0) ** 2 * (f1 - f2) - (d1 - d2) ** 2 * (f1 - f0)) / den
-            best_d = float(min(max(v, 0.5 * (d0 + d1)), 0.5 * (d1 + d2)))
+    best_d = parabola_vertex(tried, best_d)
     log.info("transport delay %.1f ms: training cost at no delay %.3g, at the best delay of the scan %.3g",
              1e3 * best_d, cost0, best_cost)
     return best_d, best_th, calls
@@ -697,6 +749,7 @@ class IdentResult:
     linear_train_rms: float = math.nan  # the best straight line's training RMS (deg)
     seed: int = 0  # the design's scramble (0: the default's)
     servo_tau_s: float = 0.0  # the servo's lag in front of the model (s): it sees u through a first-order lag
+    servo_rate_mm_s: float = math.inf  # ... capped at this speed (mm/s; inf: no cap)
 
     def fit_dict(self) -> dict:
         d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
@@ -704,6 +757,7 @@ class IdentResult:
              "n_heldout": self.n_heldout, "split_time_s": self.split_time, "two_sided": self.two_sided,
              "evaluations": self.evaluations, "method": "variable-projection design + levenberg-marquardt",
              "z0_start_of_log": self.z0, "delay_s": self.delay_s, "servo_tau_s": self.servo_tau_s,
+             "servo_rate_mm_s": self.servo_rate_mm_s if math.isfinite(self.servo_rate_mm_s) else None,
              "linear_train_rms_deg": self.linear_train_rms,
              "design_seed": self.seed}
         if self.travel_mm is not None:
@@ -824,7 +878,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     S, labels = start_design(data, seed, prior)
     keep_starts = max(1, RANKED_PER_POPSIZE * popsize)
     # with a delay scan asked for, the delay stands for the servo, link and sensor lag together
-    lag, lag_ratio = lag_scan(data, S, max_lag_s) if max_lag_s > 0 and max_delay_s <= 0 else (0.0, 1.0)
+    lag, lag_ratio = lag_scan(data, S, max_lag_s) if max_lag_s > 0 and max_delay_s <= 0 else (Servo(), 1.0)
     starts = linear_solve(data, S, labels, keep_starts)
     trace.design_size = int(S.shape[0])
     if progress:
@@ -876,23 +930,23 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         best = escalate(data, best, first, starts, seed, trace, search, progress)
     best = fold_check(data, best, starts, trace, search)
     best = simpler_models(data, best, starts, trace, search, progress)
-    if lag > 0 and lag_ratio > 1.0 - LAG_GAIN_SURE and not lag_checks(data, best.theta, lag):
-        trace.lag_s = lag  # proposed, and refused by the short refinement
-        lag = 0.0
-    if lag > 0:  # the scan's servo lag: the design solved through it and refined, the model without it a start
-        plain, data = data, data.with_lag(lag)
+    if lag.active and lag_ratio > 1.0 - LAG_GAIN_SURE and not lag_checks(data, best.theta, lag):
+        trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s  # proposed, refused by the short refinement
+        lag = Servo()
+    if lag.active:  # the scan's servo: the design solved through it and refined, the model without it a start
+        plain, data = data, data.with_servo(lag)
         kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}  # what the model without the lag did
         lag_starts = linear_solve(data, S, labels, keep_starts)
         th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
         with_lag = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
         with_lag = simpler_models(data, with_lag, lag_starts, trace, search, progress)
-        trace.lag_s = lag
+        trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s
         trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
-        if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask]):
+        if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask], lag.parameters):
             best = with_lag
         else:
-            log.info("servo lag %.1f ms not kept: the model fits the training part no better with it (%.4g deg "
-                     "against %.4g without)", 1e3 * lag, with_lag.train_rms, best.train_rms)
+            log.info("servo %s not kept: the model fits the training part no better with it (%.4g deg "
+                     "against %.4g without)", lag, with_lag.train_rms, best.train_rms)
             data = plain
             for k, v in kept_trace.items():
                 setattr(trace, k, v)
@@ -907,7 +961,8 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         heldout_mask=data.held_mask, z0=best.z0, trace=trace,
         support=support_check(data.t, data.u, data.w, best.w_pred, data.train_mask, data.held_mask, data.noise),
         delay_s=best.delay, travel_mm=central_range(data.u), uncertainty=unc, excitation=exc,
-        linear_train_rms=trace.line_train_rms, seed=seed, servo_tau_s=data.lag_s)
+        linear_train_rms=trace.line_train_rms, seed=seed, servo_tau_s=data.servo.tau_s,
+        servo_rate_mm_s=data.servo.rate_mm_s)
 
 
 def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, seed: int, trace: SearchTrace,

@@ -23,6 +23,7 @@ from warpbridge.model.effects import (
     core_params,
     drift_shape,
     dynamic_pressure_kpa,
+    servo_move,
     slack_start,
     slack_step,
 )
@@ -72,7 +73,7 @@ class PlantStepper:
         self._t0 = float(t0)
         self._u0 = float(u0)
         self._rate_y = float(u0)
-        self._servo_y = float(u0)
+        self._servo_y = self._servo_c = float(u0)  # settled on the first command
         self._slack = e.slack_args  # fixed for the plant's life: not rebuilt every sample
         self._play_y = slack_start(e, float(u0), plant.slack_side)
         x0 = self._play_y if e.has_slack else float(u0)
@@ -104,9 +105,10 @@ class PlantStepper:
         """Advance to time t with command u; returns (w_true, w_meas)."""
         e = self.plant.effects
         x = self._delayed(float(t), float(u))
-        if e.servo_tau_s > 0:  # the servo's position loop, as effects.lagged (settled on the first command)
-            a = math.exp(-(t - self._t_prev) / e.servo_tau_s)
-            self._servo_y = x = a * self._servo_y + (1.0 - a) * x
+        if e.has_servo:  # the servo's position loop, as effects.servo_follow: it holds the previous command
+            self._servo_y = servo_move(self._servo_y, self._servo_c, float(t) - self._t_prev, e.servo_tau_s,
+                                       e.servo_rate_mm_s)
+            self._servo_c, x = x, self._servo_y
         if math.isfinite(e.rate_mm_s):
             step = e.rate_mm_s * (t - self._t_prev)
             d = min(max(x - self._rate_y, -step), step)

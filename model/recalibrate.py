@@ -30,7 +30,7 @@ from scipy.optimize import least_squares
 from warpbridge.model import excitation as X
 from warpbridge.model.adapt import fold_pretension
 from warpbridge.model.boucwen import BoucWenParams, forward
-from warpbridge.model.effects import lagged
+from warpbridge.model.effects import servo_follow
 from warpbridge.model.identify import identify
 from warpbridge.model.signals import noise_floor
 from warpbridge.model.transform import Transform
@@ -129,7 +129,7 @@ def _split(t: np.ndarray, heldout_frac: float) -> tuple[np.ndarray, np.ndarray]:
 
 def predict(params: BoucWenParams, t: np.ndarray, u: np.ndarray, lag_s: float) -> np.ndarray:
     """Warp (deg) the model gives for command u through a first-order servo lag of ``lag_s``."""
-    x = lagged(t, u, lag_s, float(u[0])) if lag_s > 0 else u
+    x = servo_follow(t, u, lag_s, math.inf, float(u[0])) if lag_s > 0 else u
     w, _, _ = forward(params, x)
     return w
 
@@ -208,7 +208,7 @@ def refit_full(base: BoucWenParams, t, u, w, *, lag_s: float = 0.02, heldout_fra
     t, u, w = _check(t, u, w)
     train, held = _split(t, heldout_frac)
     old = old if old is not None else base
-    x = lagged(t, u, lag_s, float(u[0])) if lag_s > 0 else u
+    x = servo_follow(t, u, lag_s, math.inf, float(u[0])) if lag_s > 0 else u
     n_fit = int(np.searchsorted(t, t[held][0])) if held.any() else t.size
     ident = identify(t[:n_fit], x[:n_fit], w[:n_fit], heldout_frac=0.2, seed=seed, maxiter=maxiter,
                      prior=base, max_delay_s=0.0, max_lag_s=0.0, progress=progress)  # the servo's lag is lag_s here

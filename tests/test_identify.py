@@ -1,9 +1,12 @@
 """Identification from logs simulated with the paper's parameters and 0.05 deg sensor noise."""
 
+import math
+
 import numpy as np
 import pytest
 
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
+from warpbridge.model.effects import servo_follow
 from warpbridge.model.excitation import filtered_random, multisine_reversals
 from warpbridge.model.identify import (
     compress_path,
@@ -349,18 +352,27 @@ def stepped_command(t: np.ndarray, seed: int) -> np.ndarray:
 
 
 def test_the_servos_lag_is_found_in_front_of_the_hysteresis_on_a_stepped_closed_loop_log():
-    from warpbridge.model.effects import lagged
-
     t = T[: T.size // 2]  # 20 s: 20 steps
     u = stepped_command(t, 5)
-    _, w = noisy_log(lagged(t, u, 0.02, float(u[0])), 6)  # the tendon follows the command through the servo
+    # the tendon follows the command through the servo's position loop, each row's command held until the next
+    _, w = noisy_log(servo_follow(t, u, 0.02, math.inf, float(u[0])), 6)
     res = identify(t, u, w, maxiter=60)
-    assert res.servo_tau_s == pytest.approx(0.02, abs=0.006)
+    assert res.servo_tau_s == pytest.approx(0.02, abs=0.006) and math.isinf(res.servo_rate_mm_s)
     assert res.trace.lag_train_rms[1] < 0.98 * res.trace.lag_train_rms[0]
     assert res.heldout_rms < 1.5 * res.noise
     bare = identify(t, u, w, maxiter=60, max_lag_s=0.0)  # fed the raw command, the model reverses at the spikes
     assert bare.servo_tau_s == 0.0 and bare.trace.lag_train_rms is None
     assert bare.heldout_rms > 3.0 * res.heldout_rms
+
+
+def test_a_servo_that_crosses_the_commands_jumps_at_its_rated_speed_is_found_capped():
+    t = T[: T.size // 2]
+    u = stepped_command(t, 5)  # jumps of up to 4.5 mm: at 60 mm/s the servo needs up to 75 ms for one
+    _, w = noisy_log(servo_follow(t, u, 0.02, 60.0, float(u[0])), 6)
+    res = identify(t, u, w, maxiter=60)
+    assert res.servo_rate_mm_s == pytest.approx(60.0, rel=0.25)
+    assert res.heldout_rms < 1.5 * res.noise
+    assert res.fit_dict()["servo_rate_mm_s"] == res.servo_rate_mm_s
 
 
 def test_no_servo_lag_is_kept_where_the_tendon_follows_the_command(fitted):

@@ -168,3 +168,32 @@ def test_aero_load_loses_warp_growing_with_airspeed():
     assert loss[0.0] == pytest.approx(0.0, abs=1e-9)
     assert 0 < loss[7.0] < loss[12.0]
     assert loss[12.0] / loss[7.0] == pytest.approx((12.0 / 7.0) ** 2, rel=0.01)  # dynamic pressure
+
+
+@pytest.mark.parametrize("rate_mm_s", [np.inf, 60.0])
+def test_the_models_servo_is_the_simulated_servo_fed_the_same_held_commands(rate_mm_s):
+    """``effects.servo_follow`` (what identify puts in front of the model) against the SITL's servo stepped in
+    0.1 ms substeps with no deadband or quantum: each row's command held until the next, the travel read at
+    each row before its command is set."""
+    import math
+
+    from warpbridge.model.effects import servo_follow
+    from warpbridge.sitl.servo_model import ServoModel, ServoSpec
+
+    speed = 1e6 if math.isinf(rate_mm_s) else rate_mm_s  # mm/s: no cap the commands reach
+    base = ServoSpec(deadband_us=0.0, quantum_us=0.0, tau_s=0.02)
+    spec = ServoSpec(deadband_us=0.0, quantum_us=0.0, tau_s=0.02,
+                     s_per_60deg=60.0 / (speed / base.mm_per_us) / base.deg_per_us)
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.008, 0.012, 400))  # a 100 Hz loop's uneven cycles
+    u = np.repeat(rng.uniform(1.0, 8.0, 40), 10) + 0.05 * rng.standard_normal(400)  # steps and jitter
+    servo = ServoModel(spec, t0=t[0], pulse0_us=spec.pulse_of(u[0]))
+    truth = [servo.mm]
+    for k in range(1, t.size):
+        for tk in np.linspace(t[k - 1], t[k], 101)[1:]:
+            servo.step(tk, spec.pulse_of(u[k - 1]))
+        truth.append(servo.mm)
+    x = servo_follow(t, u, 0.02, rate_mm_s, float(u[0]))
+    assert np.max(np.abs(x - np.array(truth))) < 0.01  # mm, against jumps of up to 7 mm
+    if math.isfinite(rate_mm_s):
+        assert np.max(np.abs(np.diff(x)) / np.diff(t)) <= rate_mm_s * (1 + 1e-9)

@@ -17,6 +17,7 @@ and time series. Every output path is checked before the fit starts.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -59,10 +60,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"sensor lag of the rig; {MAX_DELAY_S:g} for a model to diagnose with (default 0: "
                         "none, the model the feed-forward flies best with)")
     p.add_argument("--max-lag", type=float, default=MAX_LAG_S,
-                   help="scan a servo lag (first-order, its position loop) up to this long (s) in front of the "
-                        f"model, kept when it fits the log better (default {MAX_LAG_S:g}; 0: none). A closed-loop "
-                        "log's command jumps faster than the servo follows: fed the raw command, the model reverses "
-                        "where the tendon never went")
+                   help="scan a servo lag (first-order, its position loop, and its rated speed) up to this long "
+                        f"(s) in front of the model, kept when it fits the log better (default {MAX_LAG_S:g}; 0: "
+                        "none). A closed-loop log's command jumps faster than the servo follows: fed the raw "
+                        "command, the model reverses where the tendon never went")
     p.add_argument("--check", metavar="LOG",
                    help="a second bench log of the same rig, recorded with another input (a sweep, a multisine), "
                         "in the bench log's format (read with the same --wing): the model is scored on it, and "
@@ -159,7 +160,8 @@ def main(args: argparse.Namespace) -> int:
             "created": datetime.now(UTC).isoformat(timespec="seconds"), "seed": args.seed}
     # z0 stays at rest: the state at the start of this log says nothing about another log's (predict
     # and diagnose estimate it from each log's first samples); the fit record keeps this log's
-    mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s, servo_tau_s=res.servo_tau_s), fit=fit,
+    mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s, servo_tau_s=res.servo_tau_s,
+                                                         servo_rate_mm_s=res.servo_rate_mm_s), fit=fit,
                    meta=meta)
     mf.model_error = bench_model_error(mf, data)
     check_lines = []
@@ -184,9 +186,10 @@ def main(args: argparse.Namespace) -> int:
     if res.delay_s > 0:
         print(f"  transport delay {1e3 * res.delay_s:.1f} ms in front of the model (the rig's servo, link and sensor "
               "lag; effects.delay_s)")
-    if res.servo_tau_s > 0:
-        print(f"  servo lag {1e3 * res.servo_tau_s:.1f} ms in front of the model (the servo's position loop, a "
-              "first-order lag; effects.servo_lag)")
+    if res.servo_tau_s > 0 or math.isfinite(res.servo_rate_mm_s):
+        cap = f", capped at {res.servo_rate_mm_s:.3g} mm/s" if math.isfinite(res.servo_rate_mm_s) else ""
+        print(f"  servo lag {1e3 * res.servo_tau_s:.1f} ms{cap} in front of the model (the servo's position loop, "
+              "a first-order lag at most at its rated speed; effects.servo_lag)")
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
     if res.trace.restarts:
