@@ -51,14 +51,30 @@ def heavy(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def heavy_models(heavy):
-    outs = {}
-    for tag, extra in (("checked", ["--check", heavy / "check.csv"]), ("plain", [])):
-        buf = io.StringIO()
-        with contextlib.redirect_stdout(buf):
-            assert run("identify", heavy / "bench.csv", "-o", heavy / f"{tag}.json", "--quiet", "--maxiter", 60,
-                       *extra) == 0
-        outs[tag] = buf.getvalue()
-    return outs
+    """The model identified with the check log (its output), and the same model without the check's record:
+    what identify writes without --check, as the check scores the model and does not change the fit
+    (``test_the_check_log_scores_the_model_and_leaves_the_fit_as_it_is``)."""
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert run("identify", heavy / "bench.csv", "-o", heavy / "checked.json", "--quiet", "--maxiter", 60,
+                   "--check", heavy / "check.csv") == 0
+    plain = json.loads((heavy / "checked.json").read_text())
+    del plain["fit"]["check"]
+    (heavy / "plain.json").write_text(json.dumps(plain))
+    return {"checked": buf.getvalue()}
+
+
+def test_the_check_log_scores_the_model_and_leaves_the_fit_as_it_is(tmp_path, capsys):
+    assert run("simulate", "-o", tmp_path / "bench.csv", "--duration", 10, "--rate", 100, "--seed", 1) == 0
+    assert run("simulate", "-o", tmp_path / "check.csv", "--duration", 10, "--rate", 100, "--excitation",
+               "sweep", "--seed", 2) == 0
+    for tag, extra in (("checked", ["--check", tmp_path / "check.csv"]), ("plain", [])):
+        assert run("identify", tmp_path / "bench.csv", "-o", tmp_path / f"{tag}.json", "--quiet", *extra) == 0
+    out = capsys.readouterr().out
+    assert out.count("check log check.csv") == 1
+    m, plain = (json.loads((tmp_path / f"{tag}.json").read_text()) for tag in ("checked", "plain"))
+    assert "check" in m["fit"] and "check" not in plain["fit"]
+    assert plain["params"] == m["params"] and plain["effects"] == m["effects"]
 
 
 @pytest.mark.slow
@@ -71,9 +87,6 @@ def test_identify_scores_the_check_log_and_warns_when_the_model_does_not_carry(h
     assert chk["known_error_corrected_deg"] > 3 * bench_known  # the sweep is missed far worse than the bench
     assert "check log check.csv" in heavy_models["checked"]
     assert "warning: the model misses the check log" in heavy_models["checked"]
-    plain = json.loads((heavy / "plain.json").read_text())
-    assert "check" not in plain["fit"] and "check log" not in heavy_models["plain"]
-    assert plain["params"] == m["params"]  # the check scores the model, it does not change the fit
 
 
 @pytest.mark.slow
