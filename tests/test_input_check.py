@@ -37,7 +37,7 @@ def heavy(tmp_path_factory):
     lo, hi = SheathPlant(HEAVY).travel_range(2.0)[1], SheathPlant(HEAVY).travel_range(12.0)[1]
     off, amp = 0.5 * (lo + hi), 0.5 * (hi - lo)
     rng = np.random.default_rng(1)
-    for name, dur, kind in (("bench", 40, "random"), ("check", 30, "sweep"), ("field", 30, "multisine")):
+    for name, dur, kind in (("bench", 40, "random"), ("check", 30, "sweep"), ("field", 20, "multisine")):
         t = np.arange(int(dur * RATE)) / RATE
         if kind == "random":
             u = excitation.filtered_random(t, 1.2, amp, off, seed=3)
