@@ -7,6 +7,8 @@
   on it, a built wheel) runs on one worker, so that the fixture is built once, not once per worker; the tests of
   the other files are handed out one at a time. (xdist's own ``xdist_group`` marks rename the node ids, which
   pytest 9 no longer allows: the scheduler below groups by file instead.)
+- In a worker numba fits on one thread: the workers keep the cores busy, and numba's threads on top of them
+  would only contend for the same cores.
 - Tests marked ``slow`` are collected first, with the rest of their file when it is grouped: the scheduler hands
   the long ones out while there is still short work to balance them with.
 """
@@ -30,6 +32,13 @@ def cores() -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         return os.cpu_count() or 1
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """In an xdist worker, numba fits on one thread (unless ``NUMBA_NUM_THREADS`` says otherwise): the workers
+    already keep the cores busy, and numba's own threads on top of them only contend for the same cores."""
+    if os.environ.get("PYTEST_XDIST_WORKER") and "NUMBA_NUM_THREADS" not in os.environ:
+        os.environ["NUMBA_NUM_THREADS"] = "1"
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -1,5 +1,7 @@
 """The model commands end to end on real files: simulate -> identify -> predict, and clear errors on bad input."""
 
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -262,12 +264,21 @@ def test_max_delay_is_checked_against_the_scans_grid(tmp_path, capsys):
     assert not (tmp_path / "m.json").exists()
 
 
-def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(workdir, tmp_path, capsys, monkeypatch):
+@pytest.fixture(scope="module")
+def short_fit(workdir):
+    """identify's output and model on the bench log with 10 refinement steps, the defaults otherwise."""
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert run("identify", workdir / "bench.csv", "-o", workdir / "once.json", "--maxiter", 10) == 0
+    return buf.getvalue(), json.loads((workdir / "once.json").read_text())
+
+
+def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(workdir, short_fit, tmp_path, capsys,
+                                                                               monkeypatch):
     import warpbridge.model.identify as ident
 
+    assert "searched again" not in short_fit[0]
     capsys.readouterr()
-    assert run("identify", workdir / "bench.csv", "-o", tmp_path / "once.json", "--maxiter", 10) == 0
-    assert "searched again" not in capsys.readouterr().out
     monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every refinement counts as ending at the limit
     monkeypatch.setattr(ident, "EDGE_AGREE", -1.0)  # and its starts as disagreeing there
     assert run("identify", workdir / "bench.csv", "-o", tmp_path / "twice.json", "--maxiter", 10) == 0
@@ -276,13 +287,13 @@ def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(wor
     assert ("was kept" in out) != ("the first still fitted" in out)
 
 
-def test_identify_says_when_it_searched_again_without_a_fold_in_the_backbone(workdir, tmp_path, capsys, monkeypatch):
+def test_identify_says_when_it_searched_again_without_a_fold_in_the_backbone(workdir, short_fit, tmp_path, capsys,
+                                                                             monkeypatch):
     import warpbridge.model.identify as ident
 
+    assert "folded" not in short_fit[0]
+    assert "backbone_fold_deg" not in short_fit[1]["fit"]
     capsys.readouterr()
-    assert run("identify", workdir / "bench.csv", "-o", tmp_path / "once.json", "--maxiter", 10) == 0
-    assert "folded" not in capsys.readouterr().out
-    assert "backbone_fold_deg" not in json.loads((tmp_path / "once.json").read_text())["fit"]
     # a working range so wide that the paper wing's own backbone (its vertex at 17.4 deg) folds in it: without
     # the fold it fits far worse, so the data show the fold and the first model is kept
     monkeypatch.setattr(ident, "FOLD_MARGIN", 1e3)
