@@ -86,7 +86,8 @@ def fit_once(ident, t, u, w, seed: int, others) -> dict:
     wall = time.perf_counter() - t0
     return {"seed": seed, "heldout_rms_deg": r.heldout_rms, "train_rms_deg": r.train_rms, "seconds": wall,
             "other_rms_deg": other_rms(r.params, others) if others else None, "params": r.params.to_dict(),
-            "servo_tau_s": getattr(r, "servo_tau_s", None)}
+            "servo_tau_s": getattr(r, "servo_tau_s", None),
+            "servo_rate_mm_s": rate if (rate := getattr(r, "servo_rate_mm_s", math.inf)) < math.inf else None}
 
 
 def line_other(t, u, w, others) -> tuple[float, float | None]:

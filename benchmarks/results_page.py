@@ -512,9 +512,14 @@ def _closed_over_bench(rec: dict, bench: dict | None) -> str:
 
 
 def _servo(rec: dict) -> str:
-    """The servo lags the seeds' fits kept, in ms, each once."""
-    taus = sorted({round(1000 * tau) for r in rec["runs"].get("new", []) if (tau := r.get("servo_tau_s")) is not None})
-    return ", ".join(map(str, taus)) or "-"
+    """The servos the seeds' fits kept, each once: the lag in ms, and the speed cap in mm/s after an at sign."""
+    kept = set()
+    for r in rec["runs"].get("new", []):
+        if (tau := r.get("servo_tau_s")) is not None:
+            rate = r.get("servo_rate_mm_s")
+            kept.add((round(1000 * tau), round(rate) if rate is not None else None))
+    return ", ".join(f"{tau}" + (f" @{rate}" if rate is not None else "")
+                     for tau, rate in sorted(kept, key=lambda k: (k[0], k[1] or 0))) or "-"
 
 
 def _closed_loop_line(recs: list[dict]) -> list[str]:
@@ -540,7 +545,7 @@ def _seed_rows(recs: list[dict], kind: str) -> tuple[list[str], list[list[str]]]
     header = ["log", "noise floor", "baseline: straight line", "held-out min / median / max", "spread (max/min)",
               "seed 0 / old code's best (ratio)", "s/fit, median (old)"]
     if kind == "sitl":
-        header += ["closed loop / open-loop bench (old)", "servo lag kept, ms"]
+        header += ["closed loop / open-loop bench (old)", "servo kept: lag ms @ speed cap mm/s"]
     if kind == "realdata":
         header += ["other logs, median seed (line)"]
     bench = {r["plant"]: r for r in recs if r["open_loop_bench"]}
@@ -606,7 +611,8 @@ def identify_seeds_section(inp: Inputs) -> list[str]:
            + ("the old code's, in brackets, were measured in an earlier run of the same logs "
               f"(`{merged}`), so compare them only roughly. " if merged else "in brackets the old code's. ")
            + "For the closed-loop logs, the seed-0 held-out over the median of the same plant's open-loop bench log "
-           "(the target is within 1.5x), and the servo lag each seed's fit kept in front of the model"
+           "(the target is within 1.5x), and the servo each seed's fit kept in front of the model (its lag, and "
+           "its speed cap where it has one)"
            + ("; `warpbridge sitl` flies on the wall clock, so each run records its closed-loop logs afresh and "
               "two recordings of a scenario and seed differ a little: the old code's figures there are of an "
               "earlier recording" if merged and "sitl" in sets else "") + ". For the "
