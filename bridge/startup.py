@@ -71,9 +71,10 @@ def load_model_file(config: Config) -> ModelFile:
         log.info("model: the warp follows the tendon %.0f ms late (transport delay); the feed-forward inverts "
                  "the hysteresis only, the PI trim sees the delay", 1e3 * mf.effects.delay_s)
     if mf.effects.has_servo:  # identify's servo: the tendon follows the command through its position loop
-        log.info("model: the servo follows its command with a %.0f ms lag (at most %.3g mm/s); the feed-forward "
-                 "inverts the hysteresis only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s,
-                 mf.effects.servo_rate_mm_s)
+        rate = mf.effects.servo_rate_mm_s
+        log.info("model: the servo follows its command with a %.0f ms lag%s; the feed-forward inverts the "
+                 "hysteresis only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s,
+                 f", at most {rate:.3g} mm/s" if math.isfinite(rate) else "")
     return mf
 
 

@@ -253,3 +253,17 @@ def test_versioned_cache_dir_drops_other_versions_only(tmp_path):
     assert got == tmp_path / "kernels-new" and got.is_dir()
     assert not (tmp_path / "kernels-old").exists() and (tmp_path / "mine").is_dir()
     assert _jit.versioned_cache_dir(tmp_path / "absent", "v") == tmp_path / "absent" / "kernels-v"
+
+
+@pytest.mark.parametrize("rate, said", [(float("inf"), "20 ms lag;"), (60.0, "20 ms lag, at most 60 mm/s;")])
+def test_the_models_servo_is_said_with_its_cap_only_when_it_has_one(tmp_path, caplog, rate, said):
+    from warpbridge.bridge.startup import load_model_file
+
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(ModelFile(PAPER, Effects(servo_tau_s=0.02, servo_rate_mm_s=rate)).to_dict()))
+    cfg = replace(load_config(config_file(tmp_path, 1, "loop:")), model_file=path)
+    with caplog.at_level("INFO", logger="warpbridge.bridge.startup"):
+        mf = load_model_file(cfg)
+    assert mf.effects.servo_rate_mm_s == rate
+    msg = next(r.getMessage() for r in caplog.records if "servo follows" in r.getMessage())
+    assert said in msg and "inf" not in msg
