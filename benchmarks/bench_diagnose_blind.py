@@ -91,13 +91,11 @@ IDENT_SOURCES = ["model/identify.py", "model/ident_design.py", "model/ident_path
                  "model/ident_uncertainty.py", "model/signals.py", "model/kernels.py", "model/boucwen.py",
                  "model/initial_state.py", "bridge/commands/logfile.py"]
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
-                                "sitl/sheath.py", "model/diag_fit.py", "model/diag_kernels.py", "model/diag_stats.py",
-                                "model/diag_where.py", "model/diagnose.py", "model/diag_pool.py",
-                                "model/diag_transfer.py", "model/diag_left.py", "model/model_error.py",
-                                "model/effects.py", "model/plant.py",
-                                "model/input_check.py", "benchmarks/truth_lugre.py",
-                                "bridge/commands/diagnose.py", "bridge/commands/identify.py",
-                                "bridge/commands/predict.py",
+                                "sitl/sheath.py", *sorted(str(p.relative_to(ROOT)) for p in
+                                                          (ROOT / "model" / "diagnosis").glob("*.py")),
+                                "model/model_error.py", "model/effects.py", "model/plant.py",
+                                "benchmarks/truth_lugre.py", "bridge/commands/diagnose.py",
+                                "bridge/commands/identify.py", "bridge/commands/predict.py",
                                 "benchmarks/bench_diagnose_blind.py"]
 BENCH_S, FIELD_S, CHECK_S, RATE = 40.0, 60.0, 30.0, 500.0
 CHECK_SKIP_S = 1.0

@@ -14,7 +14,7 @@ command's default is the cores free at its start).
 (``Explorer.rounds``) (as shipped) against in the order they were asked for and one round at a time (the code
 before); the reports must be identical.
 ``--compare reverse-refits``: on ``--threads`` workers, round 2's refit from the new effect's own fit run for the
-two candidates of best screen and for every one that alone closed ``diagnose.ALONE_SHARE`` of the nominal's
+two candidates of best screen and for every one that alone closed ``DiagnoseOptions.alone_share`` of the nominal's
 training gap (as shipped) against for the two of best screen only (the code before); the verdicts are compared,
 the reports differ by design (more refits, other alternatives).
 ``--compare input-terms``: the model-error correction's input terms reused (as shipped) against recomputed at
@@ -67,6 +67,7 @@ table gives each case's times, their ratio and each variant's count of core runs
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -84,10 +85,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_diagnose_blind as blind  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
-from warpbridge.model import diag_fit, diag_pool, diagnose, initial_state, kernels, model_error  # noqa: E402
+from warpbridge.bridge.commands import diagnose as diagnose_cmd  # noqa: E402
+from warpbridge.model import initial_state, kernels, model_error  # noqa: E402
 from warpbridge.model._jit import njit  # noqa: E402
 from warpbridge.model.boucwen import forward  # noqa: E402
-from warpbridge.model.diag_fit import Problem  # noqa: E402
+from warpbridge.model.diagnosis import pool as diag_pool  # noqa: E402
+from warpbridge.model.diagnosis import problem as diag_fit  # noqa: E402
+from warpbridge.model.diagnosis import search as diagnose  # noqa: E402
+from warpbridge.model.diagnosis.options import DiagnoseOptions  # noqa: E402
+from warpbridge.model.diagnosis.problem import Problem  # noqa: E402
 from warpbridge.model.effects import lagged, play  # noqa: E402
 from warpbridge.model.initial_state import squared_error  # noqa: E402
 
@@ -293,7 +299,6 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     shipped_passes = {key: getattr(*key) for key in _PASSES_BASELINE}
     jobs = threads if (compare == "threads" and new) or compare in ("kept-runs", "processes", "schedule",
                                                                      "reverse-refits") else 1
-    alone_share = diagnose.ALONE_SHARE
     grid_bytes = diag_fit.GRID_CACHE_BYTES
     if compare == "kept-runs" and not new:
         diag_fit.GRID_CACHE_BYTES = 0
@@ -316,7 +321,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         diagnose.Explorer.rounds = _one_by_one
         diagnose.hand_out_order = _as_asked
     if compare == "reverse-refits" and not new:
-        diagnose.ALONE_SHARE = math.inf
+        diagnose_cmd.DiagnoseOptions = functools.partial(DiagnoseOptions, alone_share=math.inf)
     try:
         t0 = time.perf_counter()
         code, text = blind.run_cli(["diagnose", str(field_csv), "--model", str(model), "--report", str(out),
@@ -330,7 +335,7 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
         diag_pool.can_fork = _SHIPPED_CAN_FORK
         diagnose.Explorer.rounds = _SHIPPED_ROUNDS
         diagnose.hand_out_order = _SHIPPED_ORDER
-        diagnose.ALONE_SHARE = alone_share
+        diagnose_cmd.DiagnoseOptions = DiagnoseOptions
         for name, fn in shipped.items():
             setattr(model_error, name, fn)
         for (module, name), fn in shipped_passes.items():

@@ -36,7 +36,7 @@ from _common import table  # noqa: E402
 from plants import FAMILIES, draw_plants, run_log  # noqa: E402
 
 from warpbridge.bridge.commands.modelio import load_model  # noqa: E402
-from warpbridge.model.diagnose import known_error  # noqa: E402
+from warpbridge.model.diagnosis.start import known_error  # noqa: E402
 from warpbridge.model.identify import noise_floor  # noqa: E402
 
 

@@ -62,13 +62,9 @@ from bench_diagnose_blind import (  # noqa: E402
 from plants import draw_plants  # noqa: E402
 
 from warpbridge.bridge.commands.modelio import load_model  # noqa: E402
-from warpbridge.model.diagnose import (  # noqa: E402
-    DiagnoseOptions,
-    bench_known_error,
-    carry_check,
-    decide_carried,
-    set_up,
-)
+from warpbridge.model.diagnosis.options import DiagnoseOptions  # noqa: E402
+from warpbridge.model.diagnosis.start import bench_known_error, set_up  # noqa: E402
+from warpbridge.model.diagnosis.transfer import carry_check, decide_carried  # noqa: E402
 
 CLASSES = ("search", "test", "log")
 
@@ -121,8 +117,8 @@ def examine(res: dict, workers: int, cache: Path) -> dict:
     carry = carry_check(ex, su.error_model, su.slack_side, measured)
     with ex.workers():
         path, carried = decide_carried(ex, opt.decision, opt.max_effects, carry)
-        ex.floor2 += carried["raised_by_ms"] if carried else 0.0
-        out = classify(ex, opt.decision, path.fit, true_fit(ex, tuple(names)), tuple(names))
+        judged = ex.at_floor(ex.floor2 + (carried.raised_by_ms if carried else 0.0))
+        out = classify(judged, opt.decision, path.fit, true_fit(judged, tuple(names)), tuple(names))
     return {"plant": res["plant"], "family": res["family"], "case": k, "truth": sorted(names),
             "verdict": sorted(path.named), "cached_verdict": res["verdict"]} | out
 

@@ -64,7 +64,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbridge.model._jit import njit
-from warpbridge.model.effects import slack_step
+from warpbridge.model.boucwen import forward
+from warpbridge.model.effects import apply_input_effects, apply_output_effects, core_params, slack_step
+from warpbridge.model.initial_state import estimate_z0
 from warpbridge.model.signals import noise_floor, warmup_end
 
 _CACHE_LOCK = threading.Lock()  # guards every ErrorModel's input-terms cache
@@ -582,10 +584,6 @@ def bench_error_model(params, effects, t, u, w) -> ErrorModel:
 
     The model is free-run on the logged input from the initial state its opening stretch gives; samples up
     to the first reversal (capped at a tenth of the log) are left out, as in identification."""
-    from warpbridge.model.boucwen import forward
-    from warpbridge.model.effects import apply_input_effects, apply_output_effects, core_params
-    from warpbridge.model.initial_state import estimate_z0
-
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)

@@ -8,7 +8,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import blind_oracle  # noqa: E402
 
-from warpbridge.model.diagnose import Decision  # noqa: E402
+from warpbridge.model.diagnosis.options import Decision  # noqa: E402
 
 D = Decision()  # level 0.05 over the effects tried, material gain half the floor
 

@@ -14,7 +14,7 @@ from warpbridge.bridge.commands.effects_spec import parse_effects
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams, inverse
 from warpbridge.model.compensation import Compensator
-from warpbridge.model.diag_fit import Problem
+from warpbridge.model.diagnosis.problem import Problem
 from warpbridge.model.effects import Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import ModelFile

@@ -7,9 +7,10 @@ import pytest
 
 from warpbridge.bridge.commands.diagnose_plot import plot_diagnosis
 from warpbridge.model.boucwen import BoucWenParams, inverse
-from warpbridge.model.diag_fit import make_split
-from warpbridge.model.diag_left import left_over, left_over_note
-from warpbridge.model.diagnose import DiagnoseOptions, diagnose
+from warpbridge.model.diagnosis import diagnose
+from warpbridge.model.diagnosis.blocks import make_split
+from warpbridge.model.diagnosis.left import left_over, left_over_note
+from warpbridge.model.diagnosis.options import DiagnoseOptions
 from warpbridge.model.effects import Effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import FitQuality, ModelFile

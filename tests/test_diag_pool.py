@@ -10,10 +10,10 @@ import signal
 import numpy as np
 import pytest
 
-from warpbridge.model import diag_pool
 from warpbridge.model.boucwen import BoucWenParams, inverse
-from warpbridge.model.diag_fit import Problem
-from warpbridge.model.diag_pool import FitPool
+from warpbridge.model.diagnosis import pool as diag_pool
+from warpbridge.model.diagnosis.pool import FitPool
+from warpbridge.model.diagnosis.problem import Problem
 from warpbridge.model.effects import Effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.plant import Plant
@@ -69,7 +69,7 @@ def test_a_pool_whose_workers_die_fits_on_in_this_process(caplog):
             with contextlib.suppress(ProcessLookupError):
                 os.kill(p.pid, signal.SIGKILL)
             p.join()
-        with caplog.at_level(logging.WARNING, logger="warpbridge.model.diag_pool"):
+        with caplog.at_level(logging.WARNING, logger="warpbridge.model.diagnosis.pool"):
             futures = [pool.submit(job) for job in jobs]
             got = [pool.result(f, job) for f, job in zip(futures, jobs, strict=True)]
     assert all(_same(a, b) for a, b in zip(expected, got, strict=True))
@@ -95,7 +95,7 @@ def test_a_pool_that_cannot_start_its_workers_fits_on_threads(monkeypatch, caplo
     monkeypatch.setattr(diag_pool, "ProcessPoolExecutor", refused)
     prob = _problem()
     jobs = prob.fit_jobs(("delay",))
-    with caplog.at_level(logging.WARNING, logger="warpbridge.model.diag_pool"):
+    with caplog.at_level(logging.WARNING, logger="warpbridge.model.diagnosis.pool"):
         with FitPool(prob, 2) as pool:
             got = [pool.result(pool.submit(job), job) for job in jobs]
     assert not pool.processes and "Resource temporarily unavailable" in caplog.text

@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from warpbridge.model.diag_stats import chunk_ids
-from warpbridge.model.diag_transfer import TRANSFER_ALPHA, Transfer, mean_se, raised_floor, transfer
+from warpbridge.model.diagnosis.options import DiagnoseOptions
+from warpbridge.model.diagnosis.stats import chunk_ids
+from warpbridge.model.diagnosis.transfer import Transfer, mean_se, raised_floor, transfer
 
 FS = 500.0
 
@@ -43,7 +44,7 @@ def test_a_correction_that_gains_here_what_it_gained_on_the_bench_carries():
 def test_a_correction_that_gains_a_fraction_here_falls_short_by_the_difference():
     w, wb, wc, ch, full = _field(0.004)
     tr = transfer(w, wb, wc, ch, bench_gain=0.015)
-    assert tr.short and tr.p_value < TRANSFER_ALPHA
+    assert tr.short and tr.p_value < DiagnoseOptions.transfer_alpha
     assert tr.shortfall == pytest.approx(0.011, rel=0.1)
 
 

@@ -16,21 +16,18 @@ from helpers import spread_friction
 from warpbridge.bridge.cli import main as cli
 from warpbridge.bridge.commands.logfile import write_csv_atomic
 from warpbridge.bridge.commands.modelio import load_model, save_model
-from warpbridge.model import diag_fit, diag_transfer
-from warpbridge.model import diagnose as diagnose_module
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
-from warpbridge.model.diag_fit import Problem, make_split
-from warpbridge.model.diag_stats import paired_gain
-from warpbridge.model.diag_where import PHASES, phase_labels
-from warpbridge.model.diagnose import (
-    DECISION_GRID,
-    DiagnoseOptions,
-    decide_carried,
-    diagnose,
-    shared_latency_start,
-    tension_band,
-    viscous_lag,
-)
+from warpbridge.model.diagnosis import diagnose
+from warpbridge.model.diagnosis import problem as diag_fit
+from warpbridge.model.diagnosis import transfer as diag_transfer
+from warpbridge.model.diagnosis.blocks import make_split
+from warpbridge.model.diagnosis.options import DECISION_GRID, DiagnoseOptions
+from warpbridge.model.diagnosis.problem import Problem
+from warpbridge.model.diagnosis.readings import tension_band, viscous_lag
+from warpbridge.model.diagnosis.search import shared_latency_start
+from warpbridge.model.diagnosis.stats import paired_gain
+from warpbridge.model.diagnosis.transfer import decide_carried
+from warpbridge.model.diagnosis.where import PHASES, phase_labels
 from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.initial_state import OPENING_MAX
@@ -189,7 +186,7 @@ def test_split_alternates_blocks_and_scores_the_end():
 def test_the_two_fastest_blocks_fall_one_on_each_side_of_the_split():
     """A slew limit shows only where the command moves fastest: when the log's fastest stretches would all be
     trained on (or all scored), one changes side, so the fit and the held-out test both see one."""
-    from warpbridge.model.diag_fit import SCORE_PATTERN, balanced_pattern
+    from warpbridge.model.diagnosis.blocks import SCORE_PATTERN, balanced_pattern
 
     t = np.arange(int(60.0 * FS)) / FS
     slow = 2.0 + np.sin(2 * np.pi * 0.2 * t)  # 1.26 mm/s at most
@@ -393,7 +390,7 @@ def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is
 
 
 def test_the_models_band_is_taken_on_the_side_of_zero_the_wing_flies():
-    from warpbridge.model.diagnose import model_band_width
+    from warpbridge.model.diagnosis.readings import model_band_width
 
     def side(sign):
         hi, lo = P.z_saturation(sign)
@@ -614,8 +611,7 @@ def test_a_misfit_within_what_the_correction_did_not_carry_is_not_named(monkeypa
     assert d.report["floor_deg"] == pytest.approx(0.25, rel=0.05)
     assert any("does not carry" in n for n in d.report["notes"])
     # the same log judged on the bench's claim alone names the lag
-    monkeypatch.setattr(diag_transfer, "TRANSFER_ALPHA", 0.0)
-    assert diagnose(t, u, w, v, mf).verdict == ["sensor_lag"]
+    assert diagnose(t, u, w, v, mf, DiagnoseOptions(transfer_alpha=0.0)).verdict == ["sensor_lag"]
 
 
 @pytest.mark.slow
@@ -649,8 +645,8 @@ def _scripted_decide(monkeypatch, verdicts: dict[float, tuple]):
     """``decide`` giving, at each raise of the floor above 1.0 (deg^2), a scripted verdict."""
     def fake(ex, d, max_effects):
         return SimpleNamespace(named=verdicts[round(ex.floor2 - 1.0, 9)])
-    monkeypatch.setattr(diagnose_module, "decide", fake)
-    return SimpleNamespace(floor2=1.0)
+    monkeypatch.setattr(diag_transfer, "decide", fake)
+    return SimpleNamespace(floor2=1.0, opt=DiagnoseOptions(), at_floor=lambda floor2: SimpleNamespace(floor2=floor2))
 
 
 def test_a_verdict_that_asks_for_less_than_its_floor_is_decided_again_on_the_lower_one(monkeypatch):
@@ -658,7 +654,7 @@ def test_a_verdict_that_asks_for_less_than_its_floor_is_decided_again_on_the_low
     # same one is named, so the raise settles at 0.2, not at the 0.5 it went through
     ex = _scripted_decide(monkeypatch, {0.0: ("a", "b"), 0.5: ("a",), 0.2: ("a",)})
     path, out = decide_carried(ex, None, 3, _ScriptedCarry({("a", "b"): 0.5, ("a",): 0.2}))
-    assert path.named == ("a",) and out["raised_by_ms"] == pytest.approx(0.2) and out["settled"]
+    assert path.named == ("a",) and out.raised_by_ms == pytest.approx(0.2) and out.settled
     assert ex.floor2 == 1.0
 
 
@@ -666,7 +662,7 @@ def test_a_raise_that_does_not_settle_keeps_the_stricter_floor_and_says_so(monke
     # at the lower raise the two effects come back, which ask for the higher one: no raise is consistent
     ex = _scripted_decide(monkeypatch, {0.0: ("a", "b"), 0.5: ("a",), 0.2: ("a", "b")})
     path, out = decide_carried(ex, None, 3, _ScriptedCarry({("a", "b"): 0.5, ("a",): 0.2}))
-    assert path.named == ("a",) and out["raised_by_ms"] == pytest.approx(0.5) and not out["settled"]
+    assert path.named == ("a",) and out.raised_by_ms == pytest.approx(0.5) and not out.settled
 
 
 def test_the_last_round_s_verdict_is_checked_too(monkeypatch):
@@ -676,11 +672,11 @@ def test_the_last_round_s_verdict_is_checked_too(monkeypatch):
     ex = _scripted_decide(monkeypatch, {0.0: ("a", "b", "c", "d", "e"), 0.1: ("a", "b", "c", "d"),
                                         0.2: ("a", "b", "c"), 0.3: ("a", "b"), 0.4: ("a",)})
     path, out = decide_carried(ex, None, 5, _ScriptedCarry(asks))
-    assert path.named == ("a",) and out["raised_by_ms"] == pytest.approx(0.4) and not out["settled"]
+    assert path.named == ("a",) and out.raised_by_ms == pytest.approx(0.4) and not out.settled
     # with a round to spare it settles where the verdict asks for the floor it was decided at
     asks[("a",)] = 0.4
     path, out = decide_carried(ex, None, 5, _ScriptedCarry(asks))
-    assert out["raised_by_ms"] == pytest.approx(0.4) and out["settled"]
+    assert out.raised_by_ms == pytest.approx(0.4) and out.settled
 
 
 @pytest.mark.slow
@@ -900,7 +896,8 @@ def test_a_stall_the_heldout_test_cannot_tell_from_a_fixed_play_is_named_backlas
 def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_play(zero, ties, named):
     from types import SimpleNamespace
 
-    from warpbridge.model.diagnose import Decision, stall_as_play
+    from warpbridge.model.diagnosis.options import Decision
+    from warpbridge.model.diagnosis.readings import stall_as_play
     from warpbridge.model.identify import central_range
 
     u = np.linspace(2.0, 10.0, 1001)  # the log's travel: 2..10 mm
@@ -908,7 +905,7 @@ def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_pl
     best = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=stall))
     play = SimpleNamespace(name="backlash", fit=SimpleNamespace(effects=Effects(backlash_mm=0.2)))
     ex = SimpleNamespace(prob=SimpleNamespace(travel=central_range(u)), base=Effects(), gain=lambda old, new: None,
-                         ties=lambda g, d: ties)
+                         ties=lambda g, d: ties, opt=DiagnoseOptions())
     r = stall_as_play(ex, Decision(), best, [best, play])
     assert (r["judged"].name if r else "friction") == named
     assert stall_as_play(ex, Decision(), best, [best]) is None  # no backlash admitted: nothing to name instead
@@ -936,7 +933,8 @@ def test_a_strained_round_winner_gives_way_to_an_equal_explanation_that_is_not(b
                                                                                 is_strained, named):
     from types import SimpleNamespace
 
-    from warpbridge.model.diagnose import Decision, strain_note, strained, unstrained_equal
+    from warpbridge.model.diagnosis.options import Decision
+    from warpbridge.model.diagnosis.selection import strain_note, strained, unstrained_equal
 
     best = _judged("drift", 0.010, best_hits, penalised=2.0)
     rival = _judged("pretension", 0.011, rival_hits, penalised=1.0)
@@ -959,7 +957,7 @@ def test_parsimony_names_the_simpler_of_equal_explanations_and_only_those():
     """A sensor lag of 10 ms is a delay to the held-out test at these rates: with parsimony the one-parameter
     delay is named and the lag reported as equally good; a 40 ms lag, which the test tells from a delay, is
     named under both decisions."""
-    from warpbridge.model.diagnose import Decision
+    from warpbridge.model.diagnosis.options import Decision
 
     for tau, plain, parsimonious in ((0.01, ["sensor_lag"], ["delay"]), (0.04, ["sensor_lag"], ["sensor_lag"])):
         t, u, w, v = make_log(Effects(sensor_tau_s=tau), seed=0)
@@ -980,7 +978,7 @@ def test_an_effect_that_closes_little_of_the_nominals_gap_is_not_named_under_min
     """A slight sensor lag beside a drift a hundred times its size: significant on its own, so named by default,
     but it closes under 3 % of the gap the nominal leaves, so not with ``min_total = 0.03``; a lag of the drift's
     size is named either way."""
-    from warpbridge.model.diagnose import Decision
+    from warpbridge.model.diagnosis.options import Decision
 
     for lag, with_total in ((0.02, ["drift"]), (0.1, ["drift", "sensor_lag"])):
         t, u, w, v = make_log(Effects(drift_deg_s=0.2, sensor_tau_s=lag), seed=3)
@@ -991,7 +989,7 @@ def test_an_effect_that_closes_little_of_the_nominals_gap_is_not_named_under_min
 
 
 def test_min_total_round_trips_and_is_left_out_at_zero():
-    from warpbridge.model.diagnose import Decision
+    from warpbridge.model.diagnosis.options import Decision
 
     assert "min_total" not in Decision().to_dict()
     d = Decision(alpha=0.01, min_total=0.03)
@@ -1014,7 +1012,7 @@ def test_two_effects_that_hide_each_other_enter_together():
     """A warming drift and an aerodynamic load of similar size: at a level stricter than either's evidence
     alone, neither passes (each leaves the other's slow, structured error, which weakens its evidence), but
     together they do, and each adds a significant share once the other is fitted. Before, nothing was named."""
-    from warpbridge.model.diagnose import Decision
+    from warpbridge.model.diagnosis.options import Decision
 
     t, u, w, v = make_log(Effects(drift_deg_s=0.15, drift_tau_s=10.0, aero_deg_per_kpa=10.0), seed=3)
     alone = diagnose(t, u, w, v, nominal_model(), DiagnoseOptions(decision=Decision(alpha=1e-8),
@@ -1032,7 +1030,7 @@ def test_two_effects_that_hide_each_other_enter_together():
 
 @pytest.mark.slow
 def test_nothing_enters_together_on_a_log_without_effects():
-    from warpbridge.model.diagnose import Decision
+    from warpbridge.model.diagnosis.options import Decision
 
     for seed in (3, 5):
         t, u, w, v = make_log(Effects(), seed=seed)
@@ -1046,7 +1044,7 @@ def test_a_load_beside_a_drift_bent_to_follow_it_is_found_from_the_drifts_round(
     the load. Round 2 refits the pair also from the load's own fit (the drift searched again), so the pair is
     found after the drift, without going on from the runner-up (as it had to before: from the drift's fit
     the load stayed small). Each keeps a high confidence."""
-    from warpbridge.model.diagnose import Decision
+    from warpbridge.model.diagnosis.options import Decision
 
     t, u, w, v = make_log(Effects(drift_deg_s=0.5, drift_tau_s=20.0, aero_gain_per_kpa=0.3, aero_deg_per_kpa=1.0),
                           seed=3)
@@ -1058,7 +1056,7 @@ def test_a_load_beside_a_drift_bent_to_follow_it_is_found_from_the_drifts_round(
 
 
 def test_a_band_effect_named_with_a_tension_change_is_flagged_as_its_possible_consequence():
-    from warpbridge.model.diagnose import tension_band_notes
+    from warpbridge.model.diagnosis.readings import tension_band_notes
 
     (note,) = tension_band_notes(["friction", "pretension"])
     assert note.startswith("friction named with pretension") and "capstan" in note and "tension at rest" in note
@@ -1070,7 +1068,7 @@ def test_a_band_effect_named_with_a_tension_change_is_flagged_as_its_possible_co
 
 
 def test_a_pretension_of_the_whole_loop_form_says_what_else_scales_a_loop_so():
-    from warpbridge.model.diagnose import whole_loop_notes
+    from warpbridge.model.diagnosis.readings import whole_loop_notes
 
     whole = Effects(pretension_offset_mm=0.4, pretension_gain=0.8, pretension_loop=1.0)
     (note,) = whole_loop_notes(["pretension"], whole)
@@ -1080,7 +1078,7 @@ def test_a_pretension_of_the_whole_loop_form_says_what_else_scales_a_loop_so():
 
 
 def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the_load_is_the_loads():
-    from warpbridge.model.diagnose import gain_by_airspeed, grows_with_load
+    from warpbridge.model.diagnosis.readings import gain_by_airspeed, grows_with_load
 
     rng = np.random.default_rng(0)
     n = 6000
@@ -1115,7 +1113,7 @@ def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the
 
 @pytest.mark.slow
 def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loads(monkeypatch):
-    import warpbridge.model.diagnose as diag
+    import warpbridge.model.diagnosis.selection as diag
 
     pair = TRUE["aero_load"][0].merged(TRUE["friction"][0])
     t, u, w, v = make_log(pair, seed=31)

@@ -11,17 +11,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from warpbridge.model.diag_fit import Fit, make_split
-from warpbridge.model.diagnose import (
-    Decision,
-    DiagnoseOptions,
-    Explorer,
-    Judged,
-    _main_rounds,
-    decide,
-    enter_together,
-    hand_out_order,
-)
+from warpbridge.model.diagnosis.blocks import make_split
+from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
+from warpbridge.model.diagnosis.problem import Fit
+from warpbridge.model.diagnosis.report import rounds_along
+from warpbridge.model.diagnosis.search import Explorer, Judged, hand_out_order
+from warpbridge.model.diagnosis.selection import decide, enter_together
 from warpbridge.model.effects import Effects
 
 FS = 100.0
@@ -165,6 +160,7 @@ class PairExplorer:
 
     def __init__(self, seconds: dict[str, list[Judged]]) -> None:
         self.nominal = fake_fit((), False)
+        self.opt = DiagnoseOptions()
         self.seconds = seconds
         self.leads: list[str] = []
 
@@ -269,7 +265,7 @@ def test_a_runner_up_taken_for_its_pair_keeps_its_confidence():
     assert path.from_runner_up and any("runner-up drift" in n for n in path.notes)
     first = {j.name: j for j in ex.round(())}
     assert first["rate_limit"].gain.gain > first["drift"].gain.gain
-    _, _, confidence = _main_rounds(ex, path, DiagnoseOptions(decision=d))
+    _, _, confidence = rounds_along(ex, path, DiagnoseOptions(decision=d))
     assert confidence["drift"] > 0.9 and confidence["sensor_lag"] > 0.9
 
 

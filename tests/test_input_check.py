@@ -15,7 +15,7 @@ import pytest
 
 from warpbridge.bridge.cli import main
 from warpbridge.model import excitation
-from warpbridge.model.input_check import known_error_on_check
+from warpbridge.model.diagnosis.check import known_error_on_check
 from warpbridge.sitl.sheath import SheathParams, SheathPlant
 
 RATE = 200.0

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from warpbridge.model.boucwen import BoucWenParams, inverse
-from warpbridge.model.diag_fit import Problem
-from warpbridge.model.diagnose import diagnose
+from warpbridge.model.diagnosis import diagnose
+from warpbridge.model.diagnosis.problem import Problem
 from warpbridge.model.effects import Effects, dynamic_pressure_kpa
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import FitQuality, ModelFile

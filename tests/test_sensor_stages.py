@@ -12,7 +12,7 @@ import pytest
 from warpbridge.bridge.commands.effects_spec import parse_effects
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.diag_fit import Problem
+from warpbridge.model.diagnosis.problem import Problem
 from warpbridge.model.effects import Effects, sensor_filtered
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import ModelFile

@@ -23,7 +23,8 @@ from pathlib import Path
 from warpbridge.bridge.commands.logfile import read_log, write_text_atomic
 from warpbridge.bridge.commands.modelio import load_model, save_model, travel_note
 from warpbridge.bridge.errors import UserError
-from warpbridge.model.diagnose import DECISION_GRID, Decision, DiagnoseOptions, diagnose
+from warpbridge.model.diagnosis import diagnose
+from warpbridge.model.diagnosis.options import DECISION_GRID, Decision, DiagnoseOptions
 from warpbridge.model.effects import EFFECT_NAMES
 
 

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from warpbridge.model.diagnose import Diagnosis
+from warpbridge.model.diagnosis import Diagnosis
 
 
 def _pyplot():

@@ -31,10 +31,10 @@ from warpbridge.bridge.commands.logfile import read_log
 from warpbridge.bridge.commands.modelio import save_model
 from warpbridge.bridge.commands.plots import plot_identification
 from warpbridge.bridge.errors import UserError
-from warpbridge.model.diagnose import bench_known_error
+from warpbridge.model.diagnosis.check import input_check
+from warpbridge.model.diagnosis.start import bench_known_error
 from warpbridge.model.effects import Effects
 from warpbridge.model.identify import DELAY_GRID_S, LAG_GRID_S, identify
-from warpbridge.model.input_check import input_check
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
 
@@ -232,7 +232,7 @@ CARRY_FACTOR = 2.0  # a check-log error this many times the bench's own (and ove
 
 
 def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
-    """The model's error on a check log of another input (``model.input_check``): the record MODEL.json keeps
+    """The model's error on a check log of another input (``model.diagnosis.check``): the record MODEL.json keeps
     under ``fit.check`` and the lines ``identify`` prints (a warning when it is over ``CARRY_FACTOR`` x the
     bench's and over the check log's noise)."""
     rec = {"log": name} | input_check(mf.params, mf.effects, mf.model_error, check.t, check.u, check.warp,

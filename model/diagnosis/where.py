@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from warpbridge.model.diag_stats import band_table, change_point, effective_n, xcorr_lag
+from warpbridge.model.diagnosis.stats import band_table, change_point, effective_n, xcorr_lag
 from warpbridge.model.effects import dynamic_pressure_kpa
 from warpbridge.model.signals import central_range
 

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from warpbridge.model.diag_fit import Split, input_speed
+from warpbridge.model.diagnosis.blocks import Split, input_speed
 
 
 def _peak(x: np.ndarray) -> float:

@@ -1,6 +1,6 @@
 """Candidate fits on worker processes, each a fork of the process that set up the diagnosis.
 
-A fit job (``diag_fit.FitJob``) is the arguments of one form's search on a
+A fit job (``problem.FitJob``) is the arguments of one form's search on a
 ``Problem``. Run on threads, the searches' Python between the compiled kernel
 calls (Nelder-Mead's steps, the least squares of the linear parameters, the
 bookkeeping of every evaluation) takes turns on the interpreter lock: on a
@@ -10,7 +10,7 @@ So the jobs run on processes forked once per diagnosis, after the problem is
 set up: each worker holds its own copy of the problem (log, nominal model,
 caches) and gets only a job's arguments; the fit comes back whole, with the
 ends of the searches it ran, which go out with later jobs to every worker (a
-search from where another started takes that one's end, ``diag_fit``).
+search from where another started takes that one's end, ``problem``).
 
 The caches a fit uses are memos of pure functions (core runs, input terms, a
 search's end by where it started), so a worker that lacks one computes the same
@@ -27,7 +27,7 @@ from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
-from warpbridge.model.diag_fit import Fit, FitJob, Problem
+from warpbridge.model.diagnosis.problem import Fit, FitJob, Problem
 
 log = logging.getLogger(__name__)
 

@@ -42,7 +42,7 @@ effect beside an output-side one (a sensor lag, an aero load) or without it
 that starts from the same effects over the same boxes as an earlier one takes
 its end (the backward check's fit without an output-side effect can retrace
 the first round's). Results are the same; on a slow capstan-sheath pair the
-core runs went from 5 087 to 4 146. On worker processes (``diag_pool``) each
+core runs went from 5 087 to 4 146. On worker processes (``pool``) each
 worker keeps its own runs; the search ends go to every worker with the jobs.
 """
 
@@ -60,7 +60,8 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
-from warpbridge.model.diag_kernels import fill_along_travel, forward_run_capped, travel_grid
+from warpbridge.model.diagnosis.blocks import Split, make_split
+from warpbridge.model.diagnosis.kernels import fill_along_travel, forward_run_capped, travel_grid
 from warpbridge.model.effects import (
     EFFECT_FIELDS,
     PULLED,
@@ -82,7 +83,7 @@ from warpbridge.model.initial_state import (
     squared_error,
 )
 from warpbridge.model.model_error import ErrorModel
-from warpbridge.model.signals import central_range, noise_floor, reversal_indices, warmup_end
+from warpbridge.model.signals import central_range, noise_floor, reversal_indices
 
 log = logging.getLogger(__name__)
 
@@ -95,113 +96,6 @@ TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this
 INPUT_FIELDS = ("delay_s", "servo_tau_s", "servo_rate_mm_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm",
                 "pretension_gain", "pretension_loop", "friction_scale", "capstan_pull_ratio", "capstan_release_ratio",
                 "capstan_zero_mm", "friction_pivot")
-
-
-# ---- the train / score split -------------------------------------------------------------------
-
-@dataclass
-class Split:
-    """Blocked split after the warm-up: ``train`` and ``score`` masks, ``chunks`` labels the scored
-    samples for paired tests (-1 elsewhere)."""
-
-    train: np.ndarray
-    score: np.ndarray
-    chunks: np.ndarray
-    start: int
-    blocks: list[tuple[int, int, str]]
-    pattern: tuple[int, ...] = ()  # the scored blocks, numbered from 0 (empty blocks included)
-
-
-SCORE_PATTERN = (1, 4, 6, 9)  # of 10 blocks: 40 % scored, spread over the log, the last block scored
-SPEED_WINDOW_S = 0.05  # input speed is measured over this span (robust to a stepped, quantised command)
-
-
-def input_speed(t: np.ndarray, u: np.ndarray, fs: float) -> np.ndarray:
-    """|u(t + h) - u(t)| / h per sample (mm/s), h about ``SPEED_WINDOW_S`` (``fs`` samples per second); 0 on
-    the last samples."""
-    n = t.size
-    k = max(1, int(round(SPEED_WINDOW_S * fs)))
-    speed = np.zeros(n)
-    if n > k:
-        speed[:-k] = np.abs(u[k:] - u[:-k]) / np.maximum(t[k:] - t[:-k], 1e-12)
-    return speed
-
-
-def block_speeds(t: np.ndarray, u: np.ndarray, fs: float, pos: np.ndarray, n_blocks: int,
-                 after: np.ndarray) -> np.ndarray:
-    """Peak input speed (mm/s) of each block: the 99th percentile of ``input_speed``; 0 for a block
-    without samples."""
-    speed = input_speed(t, u, fs)
-    out = np.zeros(n_blocks)
-    for b in range(n_blocks):
-        sel = after & (pos == b)
-        if sel.any():
-            out[b] = float(np.percentile(speed[sel], 99))
-    return out
-
-
-def balanced_pattern(speeds: np.ndarray, pattern: tuple[int, ...]) -> tuple[int, ...]:
-    """The scored blocks, changed so that the two fastest blocks of the log fall one on each side.
-
-    A slew limit, a delay or a lag shows most where the command moves fastest. If the log's fastest
-    stretches all fall in training blocks, the held-out test sees no evidence of such an effect; if they
-    all fall in scored blocks, the fit sees none. When the two fastest blocks are on the same side, the
-    fastest one changes side (the other one if the fastest is the last block) with the block of the
-    other side nearest to it in time, the slower of two equally near. The last block, when scored, never
-    moves: a drift is tested where it has grown most. No threshold: on a log whose blocks all move
-    alike the two fastest are picked by small differences, as arbitrary as the fixed pattern itself."""
-    n = speeds.size
-    scored = set(p for p in pattern if p < n)
-    if n < 4 or len(scored) < 2 or not np.any(speeds > 0):
-        return tuple(sorted(scored))
-    a, b = (int(i) for i in np.argsort(-speeds, kind="stable")[:2])
-    if (a in scored) != (b in scored):
-        return tuple(sorted(scored))
-    last = n - 1 if n - 1 in scored else -1
-    if a in scored:  # both scored: one goes to training
-        mover = a if a != last else b
-        others = [x for x in range(n) if x not in scored]
-    else:  # both trained on: the fastest is scored
-        mover = a
-        others = [x for x in scored if x != last]
-    if not others:
-        return tuple(sorted(scored))
-    partner = min(others, key=lambda x: (abs(x - mover), speeds[x]))
-    scored ^= {mover, partner}
-    return tuple(sorted(scored))
-
-
-def make_split(t: np.ndarray, u: np.ndarray, n_blocks: int = 10, chunk_s: float | None = None) -> Split:
-    """Alternating contiguous blocks: blocks 1, 4, 6, 9 of 10 scored, the rest trained on, unless the log's
-    two fastest blocks would then sit on the same side (``balanced_pattern``).
-
-    Scored blocks are cut into chunks of ``chunk_s`` (default: about 96 chunks, each between
-    5 samples and 1 s long) for the paired tests."""
-    n = t.size
-    start = warmup_end(u)
-    edges = np.linspace(t[start], t[-1], n_blocks + 1)
-    pos = np.searchsorted(edges, t, side="right") - 1
-    pos = np.clip(pos, 0, n_blocks - 1)
-    train = np.zeros(n, bool)
-    score = np.zeros(n, bool)
-    after = np.arange(n) >= start
-    fs = (n - 1) / max(t[-1] - t[0], 1e-12)
-    pattern = balanced_pattern(block_speeds(t, u, fs, pos, n_blocks, after), SCORE_PATTERN)
-    is_score = np.isin(pos, pattern)
-    score[after & is_score] = True
-    train[after & ~is_score] = True
-    if chunk_s is None:  # ~96 chunks, 5 samples to 1 s long
-        scored_s = (t[-1] - t[start]) * len(pattern) / n_blocks
-        chunk_s = min(1.0, max(scored_s / 96.0, 5.0 / fs))
-    from warpbridge.model.diag_stats import chunk_ids
-
-    chunks = chunk_ids(score, t, chunk_s)
-    blocks = []
-    for b in range(n_blocks):
-        idx = np.flatnonzero(after & (pos == b))
-        if idx.size:
-            blocks.append((int(idx[0]), int(idx[-1]) + 1, "score" if b in pattern else "train"))
-    return Split(train, score, chunks, start, blocks, pattern)
 
 
 # ---- parameter boxes ---------------------------------------------------------------------------
