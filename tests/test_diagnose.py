@@ -303,7 +303,7 @@ def test_a_shorter_delay_beside_a_narrower_band_is_the_frictions_viscous_part(fi
     got = viscous_lag(("friction", "delay"), field, base)
     assert (got is not None) == folded
     if folded:
-        assert got["bench_delay_s"] == 0.04 and got["delay_s"] == 0.03 and "rate-dependent part" in got["reason"]
+        assert got.bench_delay_s == 0.04 and got.delay_s == 0.03 and "rate-dependent part" in got.reason
     assert viscous_lag(("friction",), field, base) is None
     assert viscous_lag(("friction", "delay"), field, Effects()) is None  # the bench had no lag to share
 
@@ -349,10 +349,10 @@ def test_a_band_that_followed_the_compliance_after_a_pretension_is_the_tensions(
     got = tension_band(("pretension", "friction"), first, field, Effects())
     assert (got is not None) == folded
     if folded:
-        assert 0.0 < got["stretch_share"] <= 1.0 and "capstan" in got["reason"]
-        assert got["band_factor"] == pytest.approx(field.friction_scale / (field.pretension_gain if
+        assert 0.0 < got.stretch_share <= 1.0 and "capstan" in got.reason
+        assert got.band_factor == pytest.approx(field.friction_scale / (field.pretension_gain if
                                                                            field.pretension_loop else 1.0))
-        assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
+        assert got.compliance_factor == pytest.approx(1.0 / field.pretension_gain)
     assert tension_band(("pretension",), "pretension", field, Effects()) is None
 
 
@@ -382,8 +382,8 @@ def test_a_stall_that_widened_the_band_with_the_compliance_after_a_pretension_is
         tension = float(np.mean(np.maximum(LOG.u - field.capstan_zero_mm, 0.0)))
         play = (field.capstan_pull_ratio + field.capstan_release_ratio) * tension
         loop = 1.0 / field.pretension_gain if field.pretension_loop else 1.0
-        assert got["band_factor"] == pytest.approx(loop + play / width)
-        assert got["compliance_factor"] == pytest.approx(1.0 / field.pretension_gain)
+        assert got.band_factor == pytest.approx(loop + play / width)
+        assert got.compliance_factor == pytest.approx(1.0 / field.pretension_gain)
     assert tension_band(("pretension", "friction"), "friction", field, Effects(), LOG) is None
     # without the log and the model, a stall has no band to be judged against: it stays named
     assert tension_band(("pretension", "friction"), "pretension", field, Effects()) is None
@@ -907,7 +907,7 @@ def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_pl
     ex = SimpleNamespace(prob=SimpleNamespace(travel=central_range(u)), base=Effects(), gain=lambda old, new: None,
                          ties=lambda g, d: ties, opt=DiagnoseOptions())
     r = stall_as_play(ex, Decision(), best, [best, play])
-    assert (r["judged"].name if r else "friction") == named
+    assert (r.judged.name if r else "friction") == named
     assert stall_as_play(ex, Decision(), best, [best]) is None  # no backlash admitted: nothing to name instead
     band = SimpleNamespace(name="friction", fit=SimpleNamespace(effects=Effects(friction_scale=1.3)))
     assert stall_as_play(ex, Decision(), band, [band, play]) is None  # the band form is no play

@@ -248,7 +248,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
         "bound_hits": hits,
         "ambiguities": ambiguities,
         "dropped": path.dropped,
-        "kept_unnamed": {n: {"fitted": whole.values([n])[n]} | v for n, v in path.unnamed.items()},
+        "kept_unnamed": {n: {"fitted": whole.values([n])[n]} | v.to_dict() for n, v in path.unnamed.items()},
         "band_gain_by_airspeed": by_airspeed,
         "shrinkage": shrinkage,
         "left_over": left,

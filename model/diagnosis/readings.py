@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -21,7 +22,42 @@ from warpbridge.model.initial_state import reachable_band
 log = logging.getLogger(__name__)
 
 
-def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) -> dict | None:
+@dataclass(frozen=True)
+class StallAsPlay:
+    """``stall_as_play``'s reading: the backlash to name instead of the round's capstan stall, and why."""
+
+    judged: Judged
+    reason: str
+
+
+@dataclass(frozen=True)
+class ViscousLag:
+    """``viscous_lag``'s reading: a shorter delay kept in the model as the weaker friction's drag."""
+
+    friction_scale: float
+    bench_delay_s: float
+    delay_s: float
+    reason: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TensionBand:
+    """``tension_band``'s reading: a friction change kept in the model as the pre-tension's, its band and
+    compliance factors and the tendon's share of the travel they imply."""
+
+    band_factor: float
+    compliance_factor: float
+    stretch_share: float
+    reason: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) -> StallAsPlay | None:
     """The backlash to name instead of a capstan stall the held-out test cannot tell from it (else None).
 
     A capstan stall is a play at every reversal that grows with the tension (``capstan_zero_mm`` where the
@@ -46,17 +82,18 @@ def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) ->
     play = next((j for j in acc if j.name == "backlash"), None)
     if play is None or not ex.ties(ex.gain(play.fit, best.fit), d):
         return None
-    return {"judged": play,
-            "reason": f"friction's capstan stall (a play growing with the tension, x{eff.capstan_pull_ratio:.3g} "
-                      f"pulling and x{eff.capstan_release_ratio:.3g} releasing per mm above "
-                      f"{eff.capstan_zero_mm:.3g} mm, x{growth:.2f} across the log's travel) explains the log no "
-                      f"better than a fixed play on the held-out blocks: the play is the stall's limit and "
-                      f"nothing shows it growing with the tension, so backlash is named (to tell them apart: "
-                      f"minor loops at several mean tendon positions; a stall's play grows with the tension, a "
-                      f"backlash's does not)"}
+    return StallAsPlay(
+        play,
+        f"friction's capstan stall (a play growing with the tension, x{eff.capstan_pull_ratio:.3g} "
+        f"pulling and x{eff.capstan_release_ratio:.3g} releasing per mm above "
+        f"{eff.capstan_zero_mm:.3g} mm, x{growth:.2f} across the log's travel) explains the log no "
+        f"better than a fixed play on the held-out blocks: the play is the stall's limit and "
+        f"nothing shows it growing with the tension, so backlash is named (to tell them apart: "
+        f"minor loops at several mean tendon positions; a stall's play grows with the tension, a "
+        f"backlash's does not)")
 
 
-def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict | None:
+def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> ViscousLag | None:
     """The delay chosen beside a weaker friction when it is that friction's rate-dependent part (else None).
 
     A sheath's drag on the tendon grows with its sliding speed (a lubricant's shear), and like its Coulomb
@@ -76,13 +113,14 @@ def viscous_lag(selected: tuple[str, ...], eff: Effects, base: Effects) -> dict 
     s, d0, d1 = eff.friction_scale, base.delay_s, eff.delay_s
     if not (0.0 < s < 1.0 and d0 > 0.0 and d1 < d0 and d0 - d1 <= (1.0 - s) * d0):
         return None
-    return {"friction_scale": s, "bench_delay_s": d0, "delay_s": d1,
-            "reason": f"the delay shortened with the friction ({1e3 * d0:.1f} -> {1e3 * d1:.1f} ms while the "
-                      f"band narrowed to x{s:.2f}): a sheath's drag lags the pull in proportion to its speed and "
-                      f"weakens with the friction, and the bench's delay held that lag with the link's and the "
-                      f"servo's latency; the shorter delay is read as the friction's rate-dependent part, kept in "
-                      f"the model but not named (if the field's link or logger is faster than the bench's, it "
-                      f"may be that instead: compare their latencies)"}
+    return ViscousLag(
+        s, d0, d1,
+        f"the delay shortened with the friction ({1e3 * d0:.1f} -> {1e3 * d1:.1f} ms while the "
+        f"band narrowed to x{s:.2f}): a sheath's drag lags the pull in proportion to its speed and "
+        f"weakens with the friction, and the bench's delay held that lag with the link's and the "
+        f"servo's latency; the shorter delay is read as the friction's rate-dependent part, kept in "
+        f"the model but not named (if the field's link or logger is faster than the bench's, it "
+        f"may be that instead: compare their latencies)")
 
 
 def band_in_travel(eff: Effects, width: float, u: np.ndarray | None = None) -> float:
@@ -109,7 +147,7 @@ def model_band_width(params, w: np.ndarray) -> float:
 
 
 def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effects,
-                 base: Effects, prob=None) -> dict | None:
+                 base: Effects, prob=None) -> TensionBand | None:
     """The friction chosen after a pre-tension when its band change is what the tension change does to a sheath
     (else None).
 
@@ -147,14 +185,15 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
         return None
     sigma = compliance / band
     way = "widened" if band > 0 else "narrowed"
-    return {"band_factor": math.exp(band), "compliance_factor": math.exp(compliance), "stretch_share": sigma,
-            "reason": f"the friction band {way} (x{math.exp(band):.2f}) with the rig's compliance (x"
-                      f"{math.exp(compliance):.2f} travel per degree) after the pre-tension changed: in a tendon "
-                      f"sheath the band follows the tension (capstan law) and the tendon's stretch, {sigma:.0%} "
-                      f"of the travel here, follows it too; the friction change is read as the pre-tension's, "
-                      f"kept in the model but not named (if the sheath itself changed, its bend, wear or "
-                      f"lubricant, measure the tendon's tension at rest against the bench's: a band that "
-                      f"changed more than the tension is the sheath's own)"}
+    return TensionBand(
+        math.exp(band), math.exp(compliance), sigma,
+        f"the friction band {way} (x{math.exp(band):.2f}) with the rig's compliance (x"
+        f"{math.exp(compliance):.2f} travel per degree) after the pre-tension changed: in a tendon "
+        f"sheath the band follows the tension (capstan law) and the tendon's stretch, {sigma:.0%} "
+        f"of the travel here, follows it too; the friction change is read as the pre-tension's, "
+        f"kept in the model but not named (if the sheath itself changed, its bend, wear or "
+        f"lubricant, measure the tendon's tension at rest against the bench's: a band that "
+        f"changed more than the tension is the sheath's own)")
 
 
 # a change of the tension the sheath carries changes its friction too (capstan law: the force a stretch of

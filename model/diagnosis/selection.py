@@ -11,6 +11,8 @@ from warpbridge.model.diagnosis.problem import Fit
 from warpbridge.model.diagnosis.readings import (
     BOUND_HINTS,
     LOAD_COUPLED,
+    TensionBand,
+    ViscousLag,
     gain_by_airspeed,
     grows_with_load,
     load_ratio_text,
@@ -42,7 +44,8 @@ class Path:
     from_runner_up: bool = False  # round 2 went on from the first round's runner-up
     to_load: dict[str, dict] = field(default_factory=dict)  # effects given to the aero load: their airspeed split
     kept_by_airspeed: dict[str, dict] = field(default_factory=dict)  # named beside the load: their split
-    unnamed: dict[str, dict] = field(default_factory=dict)  # chosen and kept in the model as another effect's part
+    # chosen and kept in the model as another effect's part
+    unnamed: dict[str, ViscousLag | TensionBand] = field(default_factory=dict)
 
     @property
     def named(self) -> tuple[str, ...]:
@@ -116,8 +119,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
             best = swap
         play = stall_as_play(ex, d, best, acc)
         if play is not None:
-            play_note = play["reason"]
-            best = play["judged"]
+            play_note = play.reason
+            best = play.judged
         if rnd == 0:
             # the runner-up gets a second round of its own only when it explains nearly as much (at least half
             # the winner's gain): only then can the winner be imitating it together with another effect
@@ -177,11 +180,11 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         cur = ex.final(sel, cur)
     if play_note and "backlash" in sel and "friction" not in sel:
         notes.append(play_note)
-    unnamed: dict[str, dict] = {}
+    unnamed: dict[str, ViscousLag | TensionBand] = {}
     viscous = viscous_lag(sel, cur.effects, ex.base)
     if viscous is not None:  # chosen and fitted as any effect, but the friction's: not named
         unnamed["delay"] = viscous
-        notes.append(viscous["reason"])
+        notes.append(viscous.reason)
     # the effect that won the first round on its own and kept its place (not a runner-up taken for its pair,
     # not one of two that entered together)
     first_alone = sel[0] if sel and not entered_together and not from_runner_up and chosen_round.get(sel[0]) == 1 \
@@ -189,7 +192,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
     tension = tension_band(sel, first_alone, cur.effects, ex.base, ex.prob)
     if tension is not None:  # likewise: the band followed the tension
         unnamed["friction"] = tension
-        notes.append(tension["reason"])
+        notes.append(tension.reason)
     from_runner_up = from_runner_up and bool(sel) and chosen_round.get(sel[0]) == 1
     # an effect dropped leaves a gap in the round numbers: the rounds the report shows follow ``sel``
     chosen_round = {n: k + 1 for k, n in enumerate(sorted(sel, key=chosen_round.get))}
