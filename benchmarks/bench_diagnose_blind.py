@@ -93,8 +93,8 @@ IDENT_SOURCES = ["model/identify.py", "model/ident_design.py", "model/ident_path
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
                                 "sitl/sheath.py", *sorted(str(p.relative_to(ROOT)) for p in
                                                           (ROOT / "model" / "diagnosis").glob("*.py")),
-                                "model/model_error.py", "model/effects.py", "model/plant.py",
-                                "benchmarks/truth_lugre.py", "bridge/commands/diagnose.py",
+                                "model/model_error.py", "model/effects.py", "model/effect_registry.py",
+                                "model/plant.py", "benchmarks/truth_lugre.py", "bridge/commands/diagnose.py",
                                 "bridge/commands/identify.py", "bridge/commands/predict.py",
                                 "benchmarks/bench_diagnose_blind.py"]
 BENCH_S, FIELD_S, CHECK_S, RATE = 40.0, 60.0, 30.0, 500.0

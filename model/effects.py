@@ -85,40 +85,9 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from warpbridge.model._jit import njit
+from warpbridge.model.effect_registry import EFFECT_FIELDS, FORM_FLAGS
 
 RHO_AIR = 1.225  # kg/m^3, sea-level standard
-
-# the effects the diagnosis searches for (a change between the bench and the field)
-EFFECT_NAMES: tuple[str, ...] = (
-    "delay", "rate_limit", "backlash", "friction", "pretension", "sensor_lag", "drift", "aero_load",
-)
-# effects of the rig itself that identification finds beside the model and the diagnosis keeps as they are
-RIG_EFFECTS: tuple[str, ...] = ("servo_lag",)
-
-# effect name -> (field names, neutral values, physical meaning)
-EFFECT_FIELDS: dict[str, tuple[tuple[str, ...], tuple[float, ...], str]] = {
-    "delay": (("delay_s",), (0.0,), "pure transport delay between command and tendon motion"),
-    "servo_lag": (("servo_tau_s", "servo_rate_mm_s"), (0.0, math.inf),
-                  "the servo's position loop: a first-order approach to each command, capped at its rated speed"),
-    "rate_limit": (("rate_mm_s",), (math.inf,), "servo slew-rate limit"),
-    "backlash": (("backlash_mm",), (0.0,), "tendon slack: a dead band of fixed width at every reversal"),
-    "friction": (("friction_scale", "capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm",
-                  "friction_pivot"),
-                 (1.0, 0.0, 0.0, 0.0, 0.0),
-                 "sheath friction changed: the hysteresis widens or narrows, or a stall after each reversal "
-                 "grows with the tension"),
-    "pretension": (("pretension_offset_mm", "pretension_gain", "pretension_loop"), (0.0, 1.0, 0.0),
-                   "pre-tension changed: the elastic backbone (or the whole loop) shifts in tendon travel and "
-                   "its slope scales"),
-    "sensor_lag": (("sensor_tau_s", "sensor_stage_ratio"), (0.0, 0.0),
-                   "the warp sensor's own dynamics: a first-order lag, or two lags in cascade"),
-    "drift": (("drift_deg_s", "drift_tau_s"), (0.0, math.inf), "slow drift of the warp sensor's zero over the log"),
-    "aero_load": (("aero_gain_per_kpa", "aero_deg_per_kpa"), (0.0, 0.0),
-                  "airspeed-dependent load on the trailing edge: warp lost in proportion to dynamic pressure"),
-}
-
-
-FORM_FLAGS = ("pretension_loop",)  # fields that choose a form: written with it, not fitted, not counted
 
 
 @dataclass(frozen=True)

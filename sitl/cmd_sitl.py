@@ -56,7 +56,8 @@ from warpbridge.bridge.config import parse_config
 from warpbridge.bridge.controller import MODES
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams
-from warpbridge.model.effects import EFFECT_FIELDS, Effects
+from warpbridge.model.effect_registry import EFFECT_FIELDS
+from warpbridge.model.effects import Effects
 from warpbridge.model.modelfile import ModelFile
 from warpbridge.model.plant import Plant
 from warpbridge.sitl.lockstep import (

@@ -28,7 +28,8 @@ from warpbridge.model.diagnosis.search import shared_latency_start
 from warpbridge.model.diagnosis.stats import paired_gain
 from warpbridge.model.diagnosis.transfer import decide_carried
 from warpbridge.model.diagnosis.where import PHASES, phase_labels
-from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES, Effects, apply_input_effects
+from warpbridge.model.effect_registry import EFFECT_FIELDS, EFFECT_NAMES, forms_for
+from warpbridge.model.effects import Effects, apply_input_effects
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.initial_state import OPENING_MAX
 from warpbridge.model.model_error import ErrorModel, bench_error_model
@@ -1243,7 +1244,7 @@ def test_a_slew_limit_slower_than_the_first_search_is_searched_again():
     """A servo slewing at 1.5 % of the input's fastest rate, below the first search's 2 %: searched again down to
     0.2 %, the wider fit kept, below the first limit and at no edge."""
     t, u, _, _ = make_log(Effects(), seed=5)
-    first_lo = diag_fit.boxes_for("rate_limit", t, u)[0].lo
+    first_lo = forms_for("rate_limit", t, u)[0][0].lo
     t, u, w, v = make_log(Effects(rate_mm_s=0.75 * first_lo), seed=5)
     f = Problem(t, u, w, v, P, Effects()).fit(["rate_limit"])
     assert f.widened == ("rate_mm_s",)

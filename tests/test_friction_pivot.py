@@ -15,7 +15,8 @@ from warpbridge.bridge.commands.effects_spec import parse_effects
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.diagnosis.problem import Problem
-from warpbridge.model.effects import BAND_FIELDS, CAPSTAN_FIELDS, EFFECT_FIELDS, Effects, core_params, form_fields
+from warpbridge.model.effect_registry import EFFECT_FIELDS
+from warpbridge.model.effects import BAND_FIELDS, CAPSTAN_FIELDS, Effects, core_params, form_fields
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import ModelFile
 from warpbridge.model.plant import Plant

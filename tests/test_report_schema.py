@@ -13,7 +13,7 @@ from schema_check import validate_model, validate_report, violations
 
 from warpbridge.bridge.cli import main
 from warpbridge.bridge.commands.schemas import SCHEMAS, load_schema
-from warpbridge.model.effects import EFFECT_FIELDS, EFFECT_NAMES
+from warpbridge.model.effect_registry import EFFECT_FIELDS, EFFECT_NAMES
 from warpbridge.model.model_error import FEATURE_SETS
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "report-format.md"

@@ -25,7 +25,7 @@ from warpbridge.bridge.commands.modelio import load_model, save_model, travel_no
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.diagnosis import diagnose
 from warpbridge.model.diagnosis.options import DECISION_GRID, Decision, DiagnoseOptions
-from warpbridge.model.effects import EFFECT_NAMES
+from warpbridge.model.effect_registry import EFFECT_NAMES
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,7 +1,7 @@
 """Parsing effect switches written on a command line: ``delay=0.03,backlash=0.2,pretension=0.3:0.95``.
 
 Each effect name of the design brief takes its parameters in the order of
-``model.effects.EFFECT_FIELDS`` separated by ``:``; omitted trailing ones keep
+``model.effect_registry.EFFECT_FIELDS`` separated by ``:``; omitted trailing ones keep
 their neutral value. A single parameter may also be set by its own name
 (``aero_deg_per_kpa=2``). ``warpbridge simulate --effects`` and
 ``warpbridge sitl --effects`` both read this form.
@@ -12,7 +12,8 @@ from __future__ import annotations
 from dataclasses import fields as dataclass_fields
 
 from warpbridge.bridge.errors import UserError
-from warpbridge.model.effects import EFFECT_FIELDS, Effects
+from warpbridge.model.effect_registry import EFFECT_FIELDS
+from warpbridge.model.effects import Effects
 
 PARAMETERS = frozenset(f.name for f in dataclass_fields(Effects))
 

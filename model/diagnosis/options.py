@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-from warpbridge.model.effects import EFFECT_NAMES
+from warpbridge.model.effect_registry import EFFECT_NAMES
 
 log = logging.getLogger(__name__)
 

@@ -62,8 +62,8 @@ from scipy.optimize import minimize, minimize_scalar
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 from warpbridge.model.diagnosis.blocks import Split, make_split
 from warpbridge.model.diagnosis.kernels import fill_along_travel, forward_run_capped, travel_grid
+from warpbridge.model.effect_registry import CORE_FIELDS, EFFECT_FIELDS, LOAD_EFFECT, Box, forms_for
 from warpbridge.model.effects import (
-    EFFECT_FIELDS,
     PULLED,
     RELEASED,
     Effects,
@@ -93,104 +93,9 @@ BOUND_TOL = 0.03  # of a box's width: a fitted coordinate this close to an edge 
 BRENT_MAX_ITER = 30  # a one-parameter search's iterations (``Problem._brent``)
 MAX_SATURATED = 0.01  # a candidate driving more of the log than this beyond the model's range is rejected
 TRAVEL_STEP = 1.0 / 200  # of the input span: the core runs on a sample per this much travel, and every reversal
-INPUT_FIELDS = ("delay_s", "servo_tau_s", "servo_rate_mm_s", "rate_mm_s", "backlash_mm", "pretension_offset_mm",
-                "pretension_gain", "pretension_loop", "friction_scale", "capstan_pull_ratio", "capstan_release_ratio",
-                "capstan_zero_mm", "friction_pivot")
 
 
-# ---- parameter boxes ---------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Box:
-    """One nonlinear parameter: search variable s in [0, 1] -> physical value."""
-
-    field: str
-    lo: float
-    hi: float
-    log: bool = False
-    neutral_at_hi: bool = False  # rate limit: the top of the box means "no limit"
-    neutral_at_lo: bool = False  # capstan ratio, sensor stage ratio: the bottom of the box means "none" (0)
-    grid_like: str | None = None  # on the starting grid, take the coordinate of this (earlier) box
-    fixed: bool = False  # a form's flag: held at ``lo``, not searched (pre-tension's whole-loop form)
-    wider_lo: float | None = None  # a fit ending at ``lo`` searches again down to this (``Box.widened``)
-    wider_hi: float | None = None  # ... ending at ``hi``: up to this
-
-    def widened(self, edge: str) -> Box | None:
-        """This box reaching its wider limit at ``edge`` ("lower" or "upper"); None when that edge has none."""
-        if edge == "lower" and self.wider_lo is not None:
-            return replace(self, lo=self.wider_lo, wider_lo=None)
-        if edge == "upper" and self.wider_hi is not None:
-            return replace(self, hi=self.wider_hi, wider_hi=None)
-        return None
-
-    def value(self, s: float) -> float:
-        s = min(max(float(s), 0.0), 1.0)
-        if self.log:
-            v = math.exp(math.log(self.lo) + s * (math.log(self.hi) - math.log(self.lo)))
-        else:
-            v = self.lo + s * (self.hi - self.lo)
-        if self.neutral_at_hi and s >= 1.0:
-            return math.inf
-        if self.neutral_at_lo and s <= 0.0:
-            return 0.0
-        return v
-
-    def coord(self, v: float) -> float:
-        if self.neutral_at_hi and not math.isfinite(v):
-            return 1.0
-        if self.log:
-            v = max(v, self.lo)
-            s = (math.log(v) - math.log(self.lo)) / (math.log(self.hi) - math.log(self.lo))
-        else:
-            s = (v - self.lo) / (self.hi - self.lo)
-        return min(max(s, 0.0), 1.0)
-
-
-def boxes_for(name: str, t: np.ndarray, u: np.ndarray) -> list[Box]:
-    """Search boxes of an effect's nonlinear parameters, scaled to the log (empty: linear effect)."""
-    dur = float(t[-1] - t[0])
-    fs = (t.size - 1) / max(dur, 1e-12)
-    lo_u, hi_u = central_range(u)
-    span = max(float(hi_u - lo_u), 1e-9)
-    tmax = min(0.5, 0.05 * dur)
-    tmin = min(0.5 / fs, 0.1 * tmax)
-    if name == "delay":
-        return [Box("delay_s", tmin, tmax, log=True)]
-    if name == "sensor_lag":
-        return [Box("sensor_tau_s", tmin, tmax, log=True), Box("sensor_stage_ratio", 0.0, 1.0, neutral_at_lo=True)]
-    if name == "rate_limit":
-        dt = np.diff(t)
-        rate = np.abs(np.diff(u)) / np.where(dt > 0, dt, np.inf)
-        vmax = float(np.max(rate)) if rate.size else 1.0
-        vmax = max(vmax, 1e-9)
-        return [Box("rate_mm_s", 0.02 * vmax, 1.02 * vmax, log=True, neutral_at_hi=True, wider_lo=0.002 * vmax)]
-    if name == "backlash":
-        return [Box("backlash_mm", 1e-4 * span, 0.4 * span, log=True, wider_hi=span)]
-    if name == "friction":
-        return [Box("friction_scale", 0.01, 10.0, log=True), Box("friction_pivot", -1.0, 1.0)]
-    if name == "capstan":  # the second form of friction (``forms_for``): the stall's zero below the log's travel
-        return [Box("capstan_pull_ratio", 1e-4, 0.3, log=True, neutral_at_lo=True),
-                Box("capstan_zero_mm", lo_u - 2.0 * span, lo_u),
-                Box("capstan_release_ratio", 1e-4, 0.3, log=True, neutral_at_lo=True, grid_like="capstan_pull_ratio")]
-    if name == "drift":  # from a zero still settling at the log's end (not a static offset) to a steady ramp
-        return [Box("drift_tau_s", 0.25 * dur, 20.0 * dur, log=True, neutral_at_hi=True)]
-    if name == "pretension":
-        return [Box("pretension_offset_mm", -0.5 * span, 0.5 * span), Box("pretension_gain", 0.5, 2.0, log=True)]
-    return []
-
-
-def forms_for(name: str, t: np.ndarray, u: np.ndarray) -> list[list[Box]]:
-    """The alternative forms of an effect, each a list of boxes; the fit keeps the form that fits best.
-    Friction has two: the band of z scaled, and the capstan stall (``model.effects``); a stall fitted flat
-    is not kept (``form_supported``). Pre-tension has two with the same parameters: the backbone moved
-    alone, and the whole loop (its fixed flag ``pretension_loop``)."""
-    if name == "friction":
-        return [boxes_for("friction", t, u), boxes_for("capstan", t, u)]
-    if name == "pretension":
-        own = boxes_for(name, t, u)
-        return [own + [Box("pretension_loop", float(loop), float(loop), fixed=True)] for loop in (0, 1)]
-    return [boxes_for(name, t, u)]
-
+# ---- forms ---------------------------------------------------------------------------------------
 
 def form_supported(f: Fit) -> bool:
     """False for a capstan stall whose slack travel sits at the lower edge of its search. Such a stall hardly
@@ -365,7 +270,7 @@ class Problem:
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
-        return tuple(getattr(eff, f) for f in INPUT_FIELDS)
+        return tuple(getattr(eff, f) for f in CORE_FIELDS)
 
     def _core_params(self, eff: Effects) -> BoucWenParams:
         return core_params(self.params, eff)
@@ -534,8 +439,8 @@ class Problem:
         start = start or self.base
         movers = tuple(names if free_nonlinear is None else free_nonlinear)
         lin = tuple(f for n in names for f in linear_fields(n))
-        if "aero_load" in names and self.q is None:
-            raise ValueError("aero_load needs airspeed in the log")
+        if LOAD_EFFECT in names and self.q is None:
+            raise ValueError(f"{LOAD_EFFECT} needs airspeed in the log")
         return [FitJob(self, (names, movers, forms, start, lin, max_evals, grid_for or names[-1]))
                 for forms in itertools.product(*(forms_for(n, self.t, self.u) for n in movers))]
 

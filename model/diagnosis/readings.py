@@ -13,6 +13,7 @@ import numpy as np
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit, effect_of
 from warpbridge.model.diagnosis.search import Explorer, Judged
+from warpbridge.model.effect_registry import BAND_EFFECTS, BOUND_HINTS, LOAD_EFFECT, TENSION_CHANGES
 from warpbridge.model.effects import (
     CAPSTAN_FIELDS,
     Effects,
@@ -196,21 +197,6 @@ def tension_band(selected: tuple[str, ...], first_alone: str | None, eff: Effect
         f"changed more than the tension is the sheath's own)")
 
 
-# a change of the tension the sheath carries changes its friction too (capstan law: the force a stretch of
-# sheath can hold grows with the tension through it): what changed it, and how to tell the two apart
-TENSION_CHANGES = {
-    "pretension": ("a re-tensioned rig", "measure the tendon's tension at rest against the bench's: a band that "
-                                         "changed in proportion to it is the tension's, one that changed more is "
-                                         "the sheath's own (its bend, routing, wear or lubrication)"),
-    "aero_load": ("a load on the wing", "compare stretches flown slow and fast: a band that grows with the "
-                                        "airspeed is the load's"),
-}
-BAND_EFFECTS = ("friction", "backlash")  # what a wider or narrower friction band is named as
-# what a load on the wing changes in a tendon sheath besides the warp it bends back: the friction band and the
-# tendon's compliance (its take-up of slack stiffens with tension), all through the tension the load adds
-LOAD_COUPLED = (*BAND_EFFECTS, "pretension")
-
-
 def tension_band_notes(selected: list[str], airspeed_checked: bool = False) -> list[str]:
     """Notes for a band effect named together with a change of the tendon's tension: in a tendon sheath the
     second may be the first's consequence, not a change of its own. With ``airspeed_checked`` the aero load's
@@ -218,7 +204,7 @@ def tension_band_notes(selected: list[str], airspeed_checked: bool = False) -> l
     band = [b for b in BAND_EFFECTS if b in selected]
     notes = []
     for cause, (what, check) in TENSION_CHANGES.items():
-        if cause == "aero_load" and airspeed_checked:
+        if cause == LOAD_EFFECT and airspeed_checked:
             continue
         if cause in selected and band:
             notes.append(f"{' and '.join(band)} named with {cause}: in a tendon sheath the friction grows with "
@@ -290,12 +276,6 @@ def airspeed_note(r: dict) -> str:
     return (f"{r['effect']} beside aero_load: on the held-out blocks it gains {load_ratio_text(r)}; what the load's "
             f"tension changes (the band, capstan law, or the compliance) would gain faster than the pressure "
             f"grows, so this is a change of its own")
-
-
-BOUND_HINTS = {  # what an edge of a search means where the generic reading does not hold
-    ("capstan_zero_mm", "upper"): "the tendon would go slack within the log's travel",
-    ("sensor_stage_ratio", "upper"): "two equal lags: the sensor may have more stages, or a delay as well",
-}
 
 
 def widened_notes(fit: Fit, selected: tuple[str, ...] | list[str]) -> list[str]:

@@ -15,9 +15,7 @@ from warpbridge.model.diagnosis.search import Explorer, Judged
 from warpbridge.model.diagnosis.selection import Path
 from warpbridge.model.diagnosis.start import bench_known_error
 from warpbridge.model.diagnosis.transfer import Carried, Carry
-from warpbridge.model.effects import (
-    EFFECT_FIELDS,
-)
+from warpbridge.model.effect_registry import EFFECT_FIELDS, SEPARATE
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import ModelFile
 
@@ -26,33 +24,7 @@ log = logging.getLogger(__name__)
 
 REPORT_FORMAT = "warpbridge-diagnosis/1"
 
-# what separates effects that explain a log about equally well
-SEPARATE: dict[frozenset, str] = {
-    frozenset({"delay", "sensor_lag"}): "steps or a sharp doublet: a delay shifts the whole response, a sensor lag "
-                                        "rounds its onset; a sweep to several Hz shows the delay's phase growing "
-                                        "linearly with frequency while the lag's amplitude rolls off",
-    frozenset({"delay", "rate_limit"}): "the same excitation at two speeds or amplitudes: a slew limit only bites "
-                                        "when the tendon moves fast, a delay acts at every speed",
-    frozenset({"sensor_lag", "rate_limit"}): "the same excitation at two speeds or amplitudes: a slew limit only "
-                                             "bites on fast tendon motion, a sensor lag at every speed",
-    frozenset({"friction", "backlash"}): "minor loops of several sizes at several mean tendon positions: backlash is "
-                                         "a fixed dead band at every reversal, friction scales the loop width with "
-                                         "the excursion or grows the dead band with the tension",
-    frozenset({"friction", "pretension"}): "several amplitudes around several mean tendon positions: pre-tension "
-                                           "moves the curve and changes its slope, friction only widens the loop",
-    frozenset({"backlash", "pretension"}): "small reversals at several positions: backlash acts at every "
-                                           "reversal, a pre-tension change shifts the curve everywhere",
-    frozenset({"pretension", "aero_load"}): "runs at two or more distinct airspeeds (or one at rest): an aero load "
-                                            "grows with dynamic pressure, pre-tension does not",
-    frozenset({"pretension", "drift"}): "return to the same tendon position at intervals over a long log: drift "
-                                        "grows with time, a pre-tension offset does not",
-    frozenset({"drift", "aero_load"}): "vary the airspeed up and down over the log rather than in one direction: "
-                                       "drift follows time, aero load follows dynamic pressure",
-    frozenset({"backlash", "delay"}): "reversals at several speeds: backlash is rate independent, a delay grows "
-                                      "with speed",
-    frozenset({"backlash", "sensor_lag"}): "reversals at several speeds: backlash is rate independent, a sensor lag "
-                                           "grows with speed",
-}
+# what separates two effects that explain a log about equally well when the registry names nothing closer
 DEFAULT_SEPARATE = ("a richer excitation: a random input with sharper reversals at several amplitudes and speeds, "
                     "holds, and (for airspeed effects) a varying airspeed")
 

@@ -19,10 +19,8 @@ from warpbridge.model.diagnosis.stats import (
     effective_n,
     paired_gain,
 )
-from warpbridge.model.effects import (
-    EFFECT_FIELDS,
-    Effects,
-)
+from warpbridge.model.effect_registry import EFFECT_FIELDS, LATENCY_FIELDS
+from warpbridge.model.effects import Effects
 
 log = logging.getLogger(__name__)
 
@@ -38,9 +36,6 @@ class Judged:
     penalised: float
     confidence: float = 0.0
     ambiguous_with_best: bool = False
-
-
-LATENCY_FIELDS = {"delay": "delay_s", "sensor_lag": "sensor_tau_s"}  # effects that each add latency
 
 
 def shared_latency_start(eff: Effects, selected: tuple[str, ...], name: str, base: Effects) -> Effects:

@@ -9,8 +9,6 @@ from dataclasses import dataclass, field
 from warpbridge.model.diagnosis.options import Decision
 from warpbridge.model.diagnosis.problem import Fit
 from warpbridge.model.diagnosis.readings import (
-    BOUND_HINTS,
-    LOAD_COUPLED,
     TensionBand,
     ViscousLag,
     gain_by_airspeed,
@@ -24,6 +22,7 @@ from warpbridge.model.diagnosis.search import Explorer, Judged
 from warpbridge.model.diagnosis.stats import (
     PairedGain,
 )
+from warpbridge.model.effect_registry import BOUND_HINTS, LOAD_COUPLED, LOAD_EFFECT
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +150,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                 break
     to_load: dict[str, dict] = {}
     kept_by_airspeed: dict[str, dict] = {}
-    for b in [b for b in LOAD_COUPLED if b in sel and "aero_load" in sel]:
+    for b in [b for b in LOAD_COUPLED if b in sel and LOAD_EFFECT in sel]:
         f0 = ex.without(sel, b, cur)
         r = gain_by_airspeed(ex.w, f0.w_pred, cur.w_pred, ex.prob.q, ex.prob.split.score, ex.opt.load_min_samples,
                              ex.opt.load_spread)

@@ -14,6 +14,7 @@ from warpbridge.model.diagnosis.check import known_error_on_check
 from warpbridge.model.diagnosis.options import DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit, Problem
 from warpbridge.model.diagnosis.search import Explorer
+from warpbridge.model.effect_registry import LOAD_EFFECT
 from warpbridge.model.initial_state import estimate_plant_start
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
@@ -95,7 +96,7 @@ def set_up(t, u, w, airspeed, model: ModelFile, opt: DiagnoseOptions,
     w_nom = prob.predict(base)
     noise = noise_floor(w)
     e_m = known_error(model, noise, opt.use_model_error)
-    names = [n for n in opt.effects if n != "aero_load" or prob.has_airspeed]
+    names = [n for n in opt.effects if n != LOAD_EFFECT or prob.has_airspeed]
     why = "the log has no airspeed" if airspeed is None else "the airspeed is zero throughout the log"
     skipped = {n: why for n in opt.effects if n not in names}
     nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
