@@ -255,6 +255,7 @@ def test_noise_only_gives_an_empty_verdict():
     assert {c["effect"] for c in rep["candidates"]} == set(EFFECT_NAMES)
     assert all(not c["in_verdict"] for c in rep["candidates"])
     assert d.model.effects.active() == []
+    assert d.records.to_dict() == rep and d.records.candidates[0].tried  # the report is its records' tree
 
 
 @pytest.mark.slow

@@ -79,7 +79,12 @@ from warpbridge.model.diagnosis.readings import (
     widened_notes,
 )
 from warpbridge.model.diagnosis.report import (
-    REPORT_FORMAT,
+    Alternative,
+    InitialState,
+    Report,
+    Shrinkage,
+    SplitInfo,
+    Tests,
     candidate_table,
     carry_note,
     check_note,
@@ -93,7 +98,6 @@ from warpbridge.model.diagnosis.stats import (
     ljung_box,
     prewhiten,
 )
-from warpbridge.model.diagnosis.summary import summary_lines
 from warpbridge.model.diagnosis.transfer import carry_check, decide_carried
 from warpbridge.model.diagnosis.where import Cells, cells, gap_closed, split
 from warpbridge.model.effects import (
@@ -106,7 +110,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Diagnosis:
-    """What ``diagnose`` found: the report dict, the augmented model and series for plots."""
+    """What ``diagnose`` found: the report (REPORT.json's dict, and ``records``, the tree it is written
+    from), the augmented model and series for plots."""
 
     verdict: list[str]
     report: dict
@@ -118,6 +123,7 @@ class Diagnosis:
     w_augmented: np.ndarray = field(repr=False)
     split: Split = field(repr=False)
     cells: Cells = field(repr=False)
+    records: Report | None = field(default=None, repr=False)  # the report as its tree of records
 
 
 def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
@@ -140,7 +146,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     white = ljung_box(ra)
     indep = input_independence(prewhiten(u[analysed]), ra[1:])
 
-    alternatives = []
+    alt_raised: list[float] = []
     # what a check log already put in the known error beyond the bench's: the shortfall raises it only past that
     measured = e_m ** 2 - bench_known_error(model, noise, opt.use_model_error) ** 2
     carry = carry_check(ex, em, side, measured)
@@ -152,15 +158,14 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
                 progress("alternative decisions", k, len(opt.alternatives))
             alt, alt_carried = (path, carried) if d == opt.decision else decide_carried(ex, d, opt.max_effects, carry)
             alt_paths.append(alt)
-            alternatives.append({"decision": d.to_dict(), "verdict": list(alt.named),
-                                 "floor_raised_by_ms": alt_carried.raised_by_ms if alt_carried else 0.0,
-                                 "kept_unnamed": sorted(alt.unnamed),
-                                 "heldout_rms_after_deg": math.sqrt(alt.fit.score_mse),
-                                 "to_aero_load": [{"effect": b} | r for b, r in alt.to_load.items()]})
+            alt_raised.append(alt_carried.raised_by_ms if alt_carried else 0.0)
     sized = WholeLogSizes(prob, opt.max_evals, progress)
     sized.expect([path] + alt_paths)
-    for a, alt in zip(alternatives, alt_paths, strict=True):
-        a["effects"] = {n: sized.of(alt).values([n])[n] for n in alt.named}
+    alternatives = [Alternative(decision=d, verdict=list(alt.named), floor_raised_by_ms=up,
+                                kept_unnamed=sorted(alt.unnamed), heldout_rms_after_deg=math.sqrt(alt.fit.score_mse),
+                                to_aero_load=[{"effect": b} | r for b, r in alt.to_load.items()],
+                                effects={n: sized.of(alt).values([n])[n] for n in alt.named})
+                    for d, alt, up in zip(opt.alternatives, alt_paths, alt_raised, strict=True)]
     raised = carried.raised_by_ms if carried is not None else 0.0
     e_known = math.sqrt(e_m ** 2 + raised)  # the known error the report judges by: raised where it did not carry
     if raised > 0:  # the rest of the report on the raised floor
@@ -174,12 +179,9 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
 
     shrink = split(t, u, r0, cl, sp.score, noise, e_known, r_after=r1)
     mse0, mse1 = prob.mse(w_nom, sp.score), prob.mse(w_aug, sp.score)
-    shrinkage = {
-        "heldout_rms_before_deg": math.sqrt(mse0), "heldout_rms_after_deg": math.sqrt(mse1),
-        "gap_closed": gap_closed(mse0, mse1, noise ** 2),
-        "gap_closed_beyond_model_error": gap_closed(mse0, mse1, floor2),
-        "where": {k: v for k, v in shrink.items() if k not in ("scores", "dominant", "dominant_cell")},
-    }
+    shrinkage = Shrinkage(math.sqrt(mse0), math.sqrt(mse1), gap_closed(mse0, mse1, noise ** 2),
+                          gap_closed(mse0, mse1, floor2),
+                          {k: v for k, v in shrink.items() if k not in ("scores", "dominant", "dominant_cell")})
     whole = sized.of(path)  # the verdict's effects sized on every analysed sample; ``cur`` is the held-out one
     hits = whole.bound_hits() if selected else []
     for h in hits:
@@ -225,42 +227,22 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     meta["verdict"] = list(selected)
     augmented = ModelFile(params=model.params, effects=eff_out, z0=model.z0, fit=fitq, meta=meta,
                           model_error=model.model_error)
-    report = {
-        "format": REPORT_FORMAT,
-        "verdict": list(selected),
-        "effects": {n: whole.values([n])[n] for n in selected},
-        "effects_sized_on": "every analysed sample (training and scored blocks), once the scored blocks had "
-                            "chosen them; `effects_on_training_blocks` are the sizes the held-out figures are of",
-        "effects_on_training_blocks": {n: cur.values([n])[n] for n in selected},
-        "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
-        "noise_deg": noise, "model_error_deg": e_m, "floor_deg": math.sqrt(floor2),
-        "model_error_from_check": check_note(model, noise, opt.use_model_error),
-        "model_error_carried": carry_note(carry, carried, e_known),
-        "decision": opt.decision.to_dict(),
-        "initial_state": {"z0": z0, "method": "estimated from the log's opening stretch (algebraic start, "
-                                              "clamped to the reachable band, refined on the prediction error)"}
-        | ({"slack_taken_up_by": slack_side_name(side)} if model.effects.has_slack else {}),
-        "model_error_model": em_summary(model.model_error, em is not None),
-        "residual_is_noise": residual_is_noise,
-        "tests": {"whiteness": white.to_dict(), "input_independence": indep.to_dict()},
-        "where": where,
-        "candidates": cand,
-        "bound_hits": hits,
-        "ambiguities": ambiguities,
-        "dropped": path.dropped,
-        "kept_unnamed": {n: {"fitted": whole.values([n])[n]} | v.to_dict() for n, v in path.unnamed.items()},
-        "band_gain_by_airspeed": by_airspeed,
-        "shrinkage": shrinkage,
-        "left_over": left,
-        "alternatives": alternatives,
-        "split": {"scheme": "10 blocks, 4 scored (2, 5, 7, 10 unless the two where the command moves fastest "
-                            "would then be on the same side)", "scored_blocks": [b + 1 for b in sp.pattern],
-                  "warmup_samples": sp.start,
-                  "train_samples": int(sp.train.sum()), "score_samples": int(sp.score.sum()),
-                  "score_chunks": int(sp.chunks.max() + 1)},
-        "nominal_effects": base.to_dict(),
-        "notes": notes,
-        "model_evaluations": prob.evaluations,
-    }
-    report["summary"] = summary_lines(report)
-    return Diagnosis(list(selected), report, augmented, t, u, w, w_nom, w_aug, sp, cl)
+    report = Report(
+        verdict=list(selected), effects={n: whole.values([n])[n] for n in selected},
+        effects_on_training_blocks={n: cur.values([n])[n] for n in selected},
+        samples=int(t.size), duration_s=float(t[-1] - t[0]),
+        noise_deg=noise, model_error_deg=e_m, floor_deg=math.sqrt(floor2),
+        model_error_from_check=check_note(model, noise, opt.use_model_error),
+        model_error_carried=carry_note(carry, carried, e_known),
+        decision=opt.decision,
+        initial_state=InitialState(z0, slack_taken_up_by=slack_side_name(side) if model.effects.has_slack else None),
+        model_error_model=em_summary(model.model_error, em is not None),
+        residual_is_noise=residual_is_noise,
+        tests=Tests(white, indep),
+        where=where, candidates=cand, bound_hits=hits, ambiguities=ambiguities, dropped=path.dropped,
+        kept_unnamed={n: {"fitted": whole.values([n])[n]} | v.to_dict() for n, v in path.unnamed.items()},
+        band_gain_by_airspeed=by_airspeed, shrinkage=shrinkage, left_over=left, alternatives=alternatives,
+        split=SplitInfo([b + 1 for b in sp.pattern], sp.start, int(sp.train.sum()), int(sp.score.sum()),
+                        int(sp.chunks.max() + 1)),
+        nominal_effects=base.to_dict(), notes=notes, model_evaluations=prob.evaluations)
+    return Diagnosis(list(selected), report.to_dict(), augmented, t, u, w, w_nom, w_aug, sp, cl, report)

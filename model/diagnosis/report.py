@@ -5,16 +5,19 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 from warpbridge.model.diagnosis.check import known_error_on_check
-from warpbridge.model.diagnosis.options import DiagnoseOptions
+from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit
 from warpbridge.model.diagnosis.readings import bound_meaning
+from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.diagnosis.search import Explorer, Judged
-from warpbridge.model.diagnosis.selection import Path
+from warpbridge.model.diagnosis.selection import Dropped, Path
 from warpbridge.model.diagnosis.start import bench_known_error
-from warpbridge.model.diagnosis.transfer import Carried, Carry
+from warpbridge.model.diagnosis.stats import TestResult
+from warpbridge.model.diagnosis.summary import summary_lines
+from warpbridge.model.diagnosis.transfer import Carried, Carry, Transfer
 from warpbridge.model.effect_registry import EFFECT_FIELDS, SEPARATE
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import ModelFile
@@ -29,20 +32,248 @@ DEFAULT_SEPARATE = ("a richer excitation: a random input with sharper reversals 
                     "holds, and (for airspeed effects) a varying airspeed")
 
 
-def em_summary(em: ErrorModel | None, used: bool) -> dict:
+@dataclass(frozen=True)
+class ErrorModelSummary(Record):
+    """The model-error model MODEL.json carries (``present``) and whether the diagnosis applied it."""
+
+    OPTIONAL = ("feature_sets", "bench_rms_before_deg", "bench_rms_after_deg", "known_error_deg")
+    present: bool
+    used: bool
+    feature_sets: list[str] | None = None
+    bench_rms_before_deg: float | None = None
+    bench_rms_after_deg: float | None = None
+    known_error_deg: float | None = None
+
+
+@dataclass(frozen=True)
+class CheckNote(Record):
+    """The check log's part in the known error: its value, whether it set it, and the log's name."""
+
+    known_error_deg: float
+    set_it: bool
+    log: str | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class CarryNote(Record):
+    """The transfer check of the bench's model-error correction, and the known error it leaves."""
+
+    OPTIONAL = ("already_measured_ms", "verdict", "settled")
+    nominal: Transfer
+    short: bool
+    raised_by_ms: float
+    known_error_deg: float
+    already_measured_ms: float | None = None
+    verdict: Transfer | None = None
+    settled: bool | None = None
+
+
+INITIAL_STATE_METHOD = ("estimated from the log's opening stretch (algebraic start, clamped to the reachable band, "
+                        "refined on the prediction error)")
+
+
+@dataclass(frozen=True)
+class InitialState(Record):
+    """The hysteretic state at the log's first sample, and where a play's slack was taken up."""
+
+    OPTIONAL = ("slack_taken_up_by",)
+    z0: float
+    method: str = INITIAL_STATE_METHOD
+    slack_taken_up_by: str | None = None
+
+
+@dataclass(frozen=True)
+class Tests(Record):
+    """The residual tests of the nominal model."""
+
+    whiteness: TestResult
+    input_independence: TestResult
+
+
+@dataclass(frozen=True)
+class CandidateAlone(Record):
+    """A candidate fitted alone in round 1."""
+
+    fitted: dict
+    heldout_rms_before_deg: float
+    heldout_rms_after_deg: float
+    heldout_gain_ms: float
+    p_value: float
+    share_of_gap: float
+    at_bound: list[dict]
+
+
+@dataclass(frozen=True)
+class CandidateRound(Record):
+    """A candidate in one round of the chosen path, fitted with the effects chosen before it."""
+
+    KEYS = {"with_": "with"}
+    round: int
+    with_: list[str]
+    fitted: dict
+    heldout_rms_after_deg: float
+    heldout_gain_ms: float
+    p_value: float
+    share_of_gap: float
+    confidence: float
+
+
+@dataclass(frozen=True)
+class CandidateChosen(Record):
+    """The round a named effect was chosen in and what it did there."""
+
+    round: int
+    heldout_rms_before_deg: float | None
+    heldout_rms_after_deg: float
+    p_value: float
+    share_of_gap: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class Candidate(Record):
+    """One candidate of the vocabulary: skipped (``reason``), or tried, alone and along the chosen path."""
+
+    OPTIONAL = ("reason", "alone", "chosen")
+    effect: str
+    parameters: list[str]
+    in_verdict: bool
+    tried: bool
+    reason: str | None = None
+    alone: CandidateAlone | None = None
+    rounds: list[CandidateRound] = field(default_factory=list)
+    at_bound: list[dict] = field(default_factory=list)
+    fitted: dict | None = None
+    confidence: float = 0.0
+    chosen: CandidateChosen | None = None
+
+    def to_dict(self) -> dict:
+        if self.tried:
+            return super().to_dict()
+        return {"effect": self.effect, "parameters": self.parameters, "in_verdict": self.in_verdict,
+                "tried": False, "reason": self.reason, "confidence": self.confidence}
+
+
+@dataclass(frozen=True)
+class Separation(Record):
+    """The excitation that tells two equally good explanations apart."""
+
+    effects: list[str]
+    excitation: str
+
+
+@dataclass(frozen=True)
+class Ambiguity(Record):
+    """Candidates of one round the held-out test cannot tell from the one chosen."""
+
+    round: int
+    chosen: str
+    equally_good: list[str]
+    heldout_rms_deg: dict[str, float]
+    to_separate: list[Separation]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Alternative(Record):
+    """The verdict another decision gives on the same search."""
+
+    decision: Decision
+    verdict: list[str]
+    floor_raised_by_ms: float
+    kept_unnamed: list[str]
+    heldout_rms_after_deg: float
+    to_aero_load: list[dict]
+    effects: dict
+
+
+@dataclass(frozen=True)
+class Shrinkage(Record):
+    """How far the verdict closes the gap on the scored blocks, overall and in every cell."""
+
+    heldout_rms_before_deg: float
+    heldout_rms_after_deg: float
+    gap_closed: float | None
+    gap_closed_beyond_model_error: float | None
+    where: dict
+
+
+SPLIT_SCHEME = ("10 blocks, 4 scored (2, 5, 7, 10 unless the two where the command moves fastest would then be on "
+                "the same side)")
+
+
+@dataclass(frozen=True)
+class SplitInfo(Record):
+    """The training and scored blocks."""
+
+    scored_blocks: list[int]
+    warmup_samples: int
+    train_samples: int
+    score_samples: int
+    score_chunks: int
+    scheme: str = SPLIT_SCHEME
+
+    def to_dict(self) -> dict:
+        return {"scheme": self.scheme} | {k: v for k, v in super().to_dict().items() if k != "scheme"}
+
+
+EFFECTS_SIZED_ON = ("every analysed sample (training and scored blocks), once the scored blocks had chosen them; "
+                    "`effects_on_training_blocks` are the sizes the held-out figures are of")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Report(Record):
+    """REPORT.json as a tree of records (docs/report-format.md, field by field); ``to_dict`` adds the text
+    summary."""
+
+    format: str = REPORT_FORMAT
+    verdict: list[str]
+    effects: dict
+    effects_sized_on: str = EFFECTS_SIZED_ON
+    effects_on_training_blocks: dict
+    samples: int
+    duration_s: float
+    noise_deg: float
+    model_error_deg: float
+    floor_deg: float
+    model_error_from_check: CheckNote | None
+    model_error_carried: CarryNote | None
+    decision: Decision
+    initial_state: InitialState
+    model_error_model: ErrorModelSummary
+    residual_is_noise: bool
+    tests: Tests
+    where: dict
+    candidates: list[Candidate]
+    bound_hits: list[dict]
+    ambiguities: list[Ambiguity]
+    dropped: list[Dropped]
+    kept_unnamed: dict
+    band_gain_by_airspeed: list[dict]
+    shrinkage: Shrinkage
+    left_over: dict
+    alternatives: list[Alternative]
+    split: SplitInfo
+    nominal_effects: dict
+    notes: list[str]
+    model_evaluations: int
+
+    def to_dict(self) -> dict:
+        out = super().to_dict()
+        out["summary"] = summary_lines(out)
+        return out
+
+
+def em_summary(em: ErrorModel | None, used: bool) -> ErrorModelSummary:
     if em is None:
-        return {"present": False, "used": False}
-    return {"present": True, "used": used, "feature_sets": list(em.sets),
-            "bench_rms_before_deg": em.rms_before_deg, "bench_rms_after_deg": em.rms_after_deg,
-            "known_error_deg": em.known_error_deg}
+        return ErrorModelSummary(False, False)
+    return ErrorModelSummary(True, used, list(em.sets), em.rms_before_deg, em.rms_after_deg, em.known_error_deg)
 
 
-def rounds_along(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[list[Judged]], list[dict], dict]:
+def rounds_along(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[list[Judged]], list[Ambiguity], dict]:
     """The rounds along the chosen path as ``ex``'s floor judges them (copies of the explored ones), with
     ambiguities and the chosen effects' confidences."""
     d = opt.decision
     rounds: list[list[Judged]] = []
-    ambiguities: list[dict] = []
+    ambiguities: list[Ambiguity] = []
     chosen_conf: dict[str, float] = {}
     order = sorted(path.chosen_round, key=path.chosen_round.get)
     prefixes = [tuple(order[:k]) for k in range(len(order) + 1)]
@@ -89,88 +320,74 @@ def rounds_along(ex: Explorer, path: Path, opt: DiagnoseOptions) -> tuple[list[l
     return rounds, ambiguities, chosen_conf
 
 
-def _ambiguity(best: Judged, alts: list[Judged], rnd: int) -> dict:
-    names = [best.name] + [a.name for a in alts]
-    how = []
-    for a in alts:
-        how.append({"effects": [best.name, a.name],
-                    "excitation": SEPARATE.get(frozenset({best.name, a.name}), DEFAULT_SEPARATE)})
-    return {"round": rnd, "chosen": best.name, "equally_good": names,
-            "heldout_rms_deg": {j.name: math.sqrt(j.fit.score_mse) for j in [best, *alts]},
-            "to_separate": how}
+def _ambiguity(best: Judged, alts: list[Judged], rnd: int) -> Ambiguity:
+    how = [Separation([best.name, a.name], SEPARATE.get(frozenset({best.name, a.name}), DEFAULT_SEPARATE))
+           for a in alts]
+    return Ambiguity(rnd, best.name, [best.name] + [a.name for a in alts],
+                     {j.name: math.sqrt(j.fit.score_mse) for j in [best, *alts]}, how)
 
 
 def candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, chosen_conf: dict[str, float],
-                     final: Fit, nominal: Fit, hits: list[dict]) -> list[dict]:
+                    final: Fit, nominal: Fit, hits: list[dict]) -> list[Candidate]:
+    """Every candidate of the vocabulary: the skipped ones with why, the tried ones alone (round 1), in each
+    round of the chosen path, and, when named, the round it was chosen in."""
     out = []
     selected = path.named
     first = {j.name: j for j in rounds[0]} if rounds else {}
     for n in list(names) + list(skipped):
-        row: dict = {"effect": n, "parameters": list(EFFECT_FIELDS[n][0]), "in_verdict": n in selected}
+        params, named = list(EFFECT_FIELDS[n][0]), n in selected
         if n in skipped:
-            row.update({"tried": False, "reason": skipped[n], "confidence": 0.0})
-            out.append(row)
+            out.append(Candidate(effect=n, parameters=params, in_verdict=named, tried=False, reason=skipped[n]))
             continue
-        row["tried"] = True
         j1 = first.get(n)
+        alone = None
         if j1 is not None:
             alone_hits = j1.fit.bound_hits()
             for h in alone_hits:
                 h["meaning"] = bound_meaning(h)
-            row["alone"] = {"fitted": j1.fit.values([n])[n],
-                            "heldout_rms_before_deg": math.sqrt(nominal.score_mse),
-                            "heldout_rms_after_deg": math.sqrt(j1.fit.score_mse),
-                            "heldout_gain_ms": j1.gain.gain, "p_value": j1.gain.p_value,
-                            "share_of_gap": j1.share, "at_bound": alone_hits}
-        per_round = []
-        for k, judged in enumerate(rounds):
-            for j in judged:
-                if j.name == n:
-                    per_round.append({"round": k + 1, "with": [x for x in j.fit.names if x != n],
-                                      "fitted": j.fit.values(), "heldout_rms_after_deg": math.sqrt(j.fit.score_mse),
-                                      "heldout_gain_ms": j.gain.gain, "p_value": j.gain.p_value,
-                                      "share_of_gap": j.share, "confidence": j.confidence})
-        row["rounds"] = per_round
-        row["at_bound"] = [h for h in hits if h["effect"] == n] if n in selected else row.get("alone", {}).get(
-            "at_bound", [])
-        if n in selected:
-            row["fitted"] = final.values([n])[n]
-            row["confidence"] = chosen_conf.get(n, 0.0)
+            alone = CandidateAlone(j1.fit.values([n])[n], math.sqrt(nominal.score_mse), math.sqrt(j1.fit.score_mse),
+                                   j1.gain.gain, j1.gain.p_value, j1.share, alone_hits)
+        per_round = [CandidateRound(k + 1, [x for x in j.fit.names if x != n], j.fit.values(),
+                                    math.sqrt(j.fit.score_mse), j.gain.gain, j.gain.p_value, j.share, j.confidence)
+                     for k, judged in enumerate(rounds) for j in judged if j.name == n]
+        chosen = None
+        if named:
+            at_bound = [h for h in hits if h["effect"] == n]
+            fitted, confidence = final.values([n])[n], chosen_conf.get(n, 0.0)
             rnd = path.chosen_round.get(n)
-            chosen = [r for r in per_round if r["round"] == rnd]
-            if chosen:
+            this = [r for r in per_round if r.round == rnd]
+            if this:
                 prev = math.sqrt(path.start_mse[rnd - 1]) if rnd - 1 < len(path.start_mse) else None
-                row["chosen"] = {"round": rnd, "heldout_rms_before_deg": prev,
-                                 "heldout_rms_after_deg": chosen[0]["heldout_rms_after_deg"],
-                                 "p_value": chosen[0]["p_value"], "share_of_gap": chosen[0]["share_of_gap"]}
+                chosen = CandidateChosen(rnd, prev, this[0].heldout_rms_after_deg, this[0].p_value,
+                                         this[0].share_of_gap)
         else:
-            row["fitted"] = j1.fit.values([n])[n] if j1 is not None else None
-            row["confidence"] = max((r["confidence"] for r in per_round), default=0.0)
-        out.append(row)
+            at_bound = alone.at_bound if alone is not None else []
+            fitted = j1.fit.values([n])[n] if j1 is not None else None
+            confidence = max((r.confidence for r in per_round), default=0.0)
+        out.append(Candidate(effect=n, parameters=params, in_verdict=named, tried=True, alone=alone, rounds=per_round,
+                             at_bound=at_bound, fitted=fitted, confidence=confidence, chosen=chosen))
     return out
 
 
-def carry_note(carry: Carry | None, carried: Carried | None, e_known: float) -> dict | None:
+def carry_note(carry: Carry | None, carried: Carried | None, e_known: float) -> CarryNote | None:
     """The report's reading of the transfer check, with the known error it leaves (None without a correction
     to check)."""
     if carry is None:
         return None
-    out = {"nominal": carry.nominal.to_dict(), "short": carry.nominal.short, "raised_by_ms": 0.0,
-           "known_error_deg": e_known}
-    if carry.measured_ms > 0:
-        out["already_measured_ms"] = carry.measured_ms
-    if carried is not None:
-        out |= {"verdict": carried.verdict.to_dict(), "raised_by_ms": carried.raised_by_ms,
-                "settled": carried.settled}
-    return out
+    measured = carry.measured_ms if carry.measured_ms > 0 else None
+    if carried is None:
+        return CarryNote(nominal=carry.nominal, short=carry.nominal.short, raised_by_ms=0.0, known_error_deg=e_known,
+                         already_measured_ms=measured)
+    return CarryNote(nominal=carry.nominal, short=carry.nominal.short, raised_by_ms=carried.raised_by_ms,
+                     known_error_deg=e_known, already_measured_ms=measured, verdict=carried.verdict,
+                     settled=carried.settled)
 
 
-def check_note(model: ModelFile, noise: float, use_model_error: bool) -> dict | None:
+def check_note(model: ModelFile, noise: float, use_model_error: bool) -> CheckNote | None:
     """The check log's part in the known error: its value and whether it set it, i.e. exceeds the bench's
     (None without a check)."""
     check = known_error_on_check(model.fit.extra, use_model_error and model.model_error is not None)
     if not math.isfinite(check):
         return None
     chk = model.fit.extra.get("check", {})
-    return {"known_error_deg": check, "set_it": check > bench_known_error(model, noise, use_model_error),
-            "log": chk.get("log")}
+    return CheckNote(check, check > bench_known_error(model, noise, use_model_error), chk.get("log"))

@@ -18,6 +18,7 @@ from warpbridge.model.diagnosis.readings import (
     tension_band,
     viscous_lag,
 )
+from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.diagnosis.search import Explorer, Judged
 from warpbridge.model.diagnosis.stats import (
     PairedGain,
@@ -25,6 +26,20 @@ from warpbridge.model.diagnosis.stats import (
 from warpbridge.model.effect_registry import BOUND_HINTS, LOAD_COUPLED, LOAD_EFFECT
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Dropped(Record):
+    """An effect chosen and dropped again, and why: by the backward pass (its gain when kept), to the aero load
+    (its gain by airspeed), or left alone of a pair."""
+
+    OPTIONAL = ("gain_ms_when_kept", "p_value", "share_when_kept", "gain_by_airspeed")
+    effect: str
+    gain_ms_when_kept: float | None = None
+    p_value: float | None = None
+    share_when_kept: float | None = None
+    reason: str
+    gain_by_airspeed: dict | None = None
 
 
 @dataclass
@@ -36,7 +51,7 @@ class Path:
     chosen_round: dict[str, int]
     chosen_from: dict[str, Fit]  # the fit each chosen effect was judged against
     start_mse: list[float]
-    dropped: list[dict]
+    dropped: list[Dropped]
     notes: list[str]
     together: dict[str, PairedGain] = field(default_factory=dict)  # the first of a pair that entered together:
     # its test given the second
@@ -130,7 +145,7 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         chosen_round[best.name] = len(sel) + 1
         sel = sel + (best.name,)
         cur = best.fit
-    dropped: list[dict] = []
+    dropped: list[Dropped] = []
     changed = True
     while changed and len(sel) >= 2:
         changed = False
@@ -139,10 +154,10 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
             f = ex.without(sel, s, cur)
             g = ex.gain(f, cur)
             if not ex.admits(d, f, cur, g):
-                dropped.append({"effect": s, "gain_ms_when_kept": g.gain, "p_value": g.p_value,
-                                "share_when_kept": ex.share(f, g.gain),
-                                "reason": "once the others are fitted it adds no significant, material share "
-                                          "of the gap"})
+                dropped.append(Dropped(effect=s, gain_ms_when_kept=g.gain, p_value=g.p_value,
+                                       share_when_kept=ex.share(f, g.gain),
+                                       reason="once the others are fitted it adds no significant, material share "
+                                              "of the gap"))
                 sel = tuple(x for x in sel if x != s)
                 chosen_round.pop(s, None)
                 cur = f
@@ -159,19 +174,19 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
         if not grows_with_load(r):
             kept_by_airspeed[b] = r
             continue
-        dropped.append({"effect": b, "reason": f"its held-out gain grows faster than the dynamic pressure "
-                                               f"({load_ratio_text(r)}): what the load's tension changes in a "
-                                               f"tendon sheath (its friction band, capstan law, and the "
-                                               f"tendon's compliance), so it is the aero load's",
-                        "gain_by_airspeed": r})
+        dropped.append(Dropped(effect=b, reason=f"its held-out gain grows faster than the dynamic pressure "
+                                                f"({load_ratio_text(r)}): what the load's tension changes in a "
+                                                f"tendon sheath (its friction band, capstan law, and the "
+                                                f"tendon's compliance), so it is the aero load's",
+                               gain_by_airspeed=r))
         to_load[b] = r
         sel = tuple(x for x in sel if x != b)
         chosen_round.pop(b, None)
         cur = f0
     if len(sel) == 1 and sel[0] in entered_together and not ex.admits(d, ex.nominal, cur):
         # what is left of a pair that entered together was never admitted alone
-        dropped.append({"effect": sel[0], "reason": "entered together with an effect dropped since, and alone "
-                                                    "it adds no significant, material share of the gap"})
+        dropped.append(Dropped(effect=sel[0], reason="entered together with an effect dropped since, and alone "
+                                                     "it adds no significant, material share of the gap"))
         sel, chosen_round, cur = (), {}, ex.nominal
     together = {k: v for k, v in together.items() if k in sel}
     kept_by_airspeed = {k: v for k, v in kept_by_airspeed.items() if k in sel}
