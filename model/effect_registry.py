@@ -15,7 +15,8 @@ diagnosis its search boxes and readings (``model.diagnosis``). docs/effects.md s
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -122,7 +123,9 @@ class EffectSpec:
     name: str
     meaning: str  # what it is, physically
     params: tuple[Param, ...]
-    operator: str  # the function of ``model.effects`` that applies it
+    # the function of ``model.effects`` that applies it in the chain; an added effect has none, its ``apply``
+    # instead
+    operator: str
     # the boxes of its nonlinear parameters in each of its forms, scaled to a log; the fit keeps the best form
     forms: Callable[[LogScale], list[list[Box]]] = _no_search
     candidate: bool = True  # the diagnosis searches for it (False: the rig's own, which identify finds)
@@ -133,6 +136,10 @@ class EffectSpec:
     load_coupled: bool = False  # the tension an aero load adds changes it (a band, a compliance)
     tension_cause: tuple[str, str] | None = None  # it changes the tendon's tension: (what, how to tell apart)
     is_load: bool = False  # the load on the wing itself (what the load-coupled effects are read against)
+    # an added effect's operator, (effects, t, signal) -> signal, called after the chain's own operators on its
+    # ``side``: "input" (the tendon travel into the core) or "warp" (the wing's warp, before the aero load)
+    apply: Callable | None = None
+    side: str = ""
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -249,12 +256,15 @@ REGISTRY: tuple[EffectSpec, ...] = (
 )
 
 
+_ADDED: list[EffectSpec] = []  # effects added at run time (``register``), after the built-in ones
+
+
 def spec(name: str) -> EffectSpec:
     """The registry's entry of effect ``name``."""
-    for s in REGISTRY:
+    for s in (*REGISTRY, *_ADDED):
         if s.name == name:
             return s
-    raise KeyError(f"unknown effect {name!r} (known: {', '.join(s.name for s in REGISTRY)})")
+    raise KeyError(f"unknown effect {name!r} (known: {', '.join(s.name for s in (*REGISTRY, *_ADDED))})")
 
 
 # ---- the tables derived from it ------------------------------------------------------------------
@@ -288,3 +298,63 @@ TENSION_CHANGES: dict[str, tuple[str, str]] = {s.name: s.tension_cause for s in 
 def forms_for(name: str, t: np.ndarray, u: np.ndarray) -> list[list[Box]]:
     """The search boxes of each form of effect ``name``, scaled to the log (t, u)."""
     return spec(name).forms(LogScale.of(t, u))
+
+
+# ---- effects added at run time -------------------------------------------------------------------
+
+def added(side: str = "") -> tuple[EffectSpec, ...]:
+    """The effects added at run time (on ``side`` only, if given)."""
+    return tuple(s for s in _ADDED if not side or s.side == side)
+
+
+def added_field(name: str) -> Param | None:
+    """The parameter ``name`` of an effect added at run time (None: no such parameter)."""
+    return next((p for s in _ADDED for p in s.params if p.field == name), None)
+
+
+def candidates() -> tuple[str, ...]:
+    """Every effect the diagnosis searches for: the built-in candidates, then the added ones."""
+    return EFFECT_NAMES + tuple(s.name for s in _ADDED if s.candidate)
+
+
+def register(entry: EffectSpec) -> None:
+    """Add an effect: its parameters are carried by ``Effects`` (``Effects.with_values``), its ``apply`` runs
+    on its ``side`` of the chain, and the diagnosis searches for it (``candidates``) in its ``forms``."""
+    if entry.apply is None or entry.side not in ("input", "warp"):
+        raise ValueError(f"{entry.name}: an added effect needs its apply and a side, input or warp")
+    if entry.name in EFFECT_FIELDS:
+        raise ValueError(f"effect {entry.name!r} is registered already")
+    taken = set(UNITS)
+    clash = [p.field for p in entry.params if p.field in taken]
+    if clash or any(p.linear or p.form_flag for p in entry.params):
+        raise ValueError(f"{entry.name}: parameters must be new ({', '.join(clash)} taken) and searched")
+    _ADDED.append(entry)
+    EFFECT_FIELDS[entry.name] = (entry.fields, entry.neutral, entry.meaning)
+    UNITS.update({p.field: p.unit for p in entry.params})
+    SEPARATE.update({frozenset({entry.name, other}): text for other, text in entry.separate.items()})
+    BOUND_HINTS.update(entry.bound_hints)
+
+
+def unregister(name: str) -> None:
+    """Take an effect added at run time out again."""
+    entry = spec(name)
+    if entry not in _ADDED:
+        raise ValueError(f"effect {name!r} is built in")
+    _ADDED.remove(entry)
+    del EFFECT_FIELDS[name]
+    for p in entry.params:
+        UNITS.pop(p.field, None)
+    for other in entry.separate:
+        SEPARATE.pop(frozenset({name, other}), None)
+    for k in entry.bound_hints:
+        BOUND_HINTS.pop(k, None)
+
+
+@contextmanager
+def registered(entry: EffectSpec) -> Iterator[EffectSpec]:
+    """``register`` for the duration of a block."""
+    register(entry)
+    try:
+        yield entry
+    finally:
+        unregister(entry.name)

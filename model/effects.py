@@ -85,7 +85,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from warpbridge.model._jit import njit
-from warpbridge.model.effect_registry import EFFECT_FIELDS, FORM_FLAGS
+from warpbridge.model.effect_registry import EFFECT_FIELDS, FORM_FLAGS, added, added_field
 
 RHO_AIR = 1.225  # kg/m^3, sea-level standard
 
@@ -113,9 +113,24 @@ class Effects:
     drift_tau_s: float = math.inf
     aero_gain_per_kpa: float = 0.0
     aero_deg_per_kpa: float = 0.0
+    # the parameters of effects added at run time (``effect_registry.register``), those off neutral, by name;
+    # read them as attributes like the others, set them with ``with_values``
+    extra: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
+        extra = {}
+        for k, v in self.extra:
+            par = added_field(k)
+            if par is None:
+                raise ValueError(f"unknown effect parameter {k!r}")
+            if not isinstance(v, (int, float)) or math.isnan(v):
+                raise ValueError(f"effect parameter {k} must be a number")
+            if float(v) != par.neutral:
+                extra[k] = float(v)
+        object.__setattr__(self, "extra", tuple(sorted(extra.items())))
         for f in fields(self):
+            if f.name == "extra":
+                continue
             v = getattr(self, f.name)
             if not isinstance(v, (int, float)) or math.isnan(v):
                 raise ValueError(f"effect parameter {f.name} must be a number")
@@ -144,6 +159,29 @@ class Effects:
             raise ValueError("sensor stage ratio must be in [0, 1]: the second lag is the shorter one")
         if self.sensor_tau_s == 0.0:  # no lag, no second stage
             object.__setattr__(self, "sensor_stage_ratio", 0.0)
+
+    def __getattr__(self, name: str) -> float:
+        """A parameter of an effect added at run time (its neutral value when it is not set)."""
+        par = added_field(name) if not name.startswith("_") and name != "extra" else None
+        if par is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return dict(self.extra).get(name, par.neutral)
+
+    def with_values(self, **kw: float) -> Effects:
+        """A copy with these parameters changed, an added effect's too (``dataclasses.replace`` takes only the
+        built-in ones)."""
+        added_kw = {k: kw.pop(k) for k in list(kw) if k not in BUILT_IN_FIELDS}
+        if not added_kw:
+            return replace(self, **kw)
+        unknown = [k for k in added_kw if added_field(k) is None]
+        if unknown:
+            raise TypeError(f"unknown effect parameter(s) {', '.join(unknown)}")
+        return replace(self, **kw, extra=tuple((dict(self.extra) | added_kw).items()))
+
+    @property
+    def added_core_key(self) -> tuple[float, ...]:
+        """The values of the added effects' parameters the core run depends on (a cache key's part)."""
+        return tuple(v for k, v in self.extra if added_field(k).in_core)
 
     @property
     def sensor_taus(self) -> tuple[float, ...]:
@@ -191,7 +229,7 @@ class Effects:
         for name, (fnames, neutral, _) in EFFECT_FIELDS.items():
             if name not in keep:
                 kw.update(dict(zip(fnames, neutral, strict=True)))
-        return replace(self, **kw)
+        return self.with_values(**kw)
 
     def merged(self, other: Effects) -> Effects:
         """``other``'s active effects on top of these."""
@@ -199,7 +237,7 @@ class Effects:
         for name in other.active():
             for f in EFFECT_FIELDS[name][0]:
                 kw[f] = getattr(other, f)
-        return replace(self, **kw)
+        return self.with_values(**kw)
 
     def to_dict(self) -> dict[str, dict[str, float]]:
         """{effect name: {parameter: value}} for the active effects; an infinite value (no limit, a steady
@@ -227,9 +265,10 @@ class Effects:
                     kw[f] = float(v)
                 except (TypeError, ValueError):
                     raise ValueError(f"effect parameter {f!r} must be a number") from None
-        return cls(**kw)
+        return cls().with_values(**kw)
 
 
+BUILT_IN_FIELDS = frozenset(f.name for f in fields(Effects) if f.name != "extra")
 BAND_FIELDS = ("friction_scale", "friction_pivot")  # friction's first form: the band scaled about a level
 CAPSTAN_FIELDS = ("capstan_pull_ratio", "capstan_release_ratio", "capstan_zero_mm")  # its second: the stall
 
@@ -478,13 +517,22 @@ def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: 
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.has_slack:
         x = slack_play(x, *eff.slack_args, slack_start(eff, float(x[0]), slack_side))
+    for entry in added("input"):  # effects added at run time, after the chain's own
+        x = np.ascontiguousarray(entry.apply(eff, t, x), dtype=np.float64)
     return x
+
+
+def added_on_warp(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The warp through the effects added at run time on its side (itself when there are none)."""
+    for entry in added("warp"):
+        w = np.asarray(entry.apply(eff, t, w), dtype=np.float64)
+    return w
 
 
 def apply_output_effects(eff: Effects, t: np.ndarray, w_model: np.ndarray, airspeed=None,
                          ) -> tuple[np.ndarray, np.ndarray]:
     """(w_true, w_meas): aero load on the warp, then sensor lag and drift on its measurement."""
-    w = np.asarray(w_model, dtype=np.float64)
+    w = added_on_warp(eff, t, np.asarray(w_model, dtype=np.float64))
     if (eff.aero_gain_per_kpa != 0.0 or eff.aero_deg_per_kpa != 0.0) and airspeed is not None:
         q = dynamic_pressure_kpa(airspeed)
         w = w * (1.0 - eff.aero_gain_per_kpa * q) - eff.aero_deg_per_kpa * q

@@ -65,6 +65,9 @@ class PlantStepper:
         if plant.error_model is not None:
             raise ValueError("the per-sample plant does not run a model-error correction (it needs whole-log "
                              "features): simulate the log with Plant.simulate")
+        if plant.effects.extra:
+            raise ValueError("the per-sample plant runs the built-in effects only; effects added at run time "
+                             "act on whole arrays: simulate the log with Plant.simulate")
         self.plant = plant
         self._p = plant.core_params().to_array()
         e = plant.effects

@@ -6,8 +6,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-from warpbridge.model.effect_registry import EFFECT_NAMES
-
 log = logging.getLogger(__name__)
 
 
@@ -62,7 +60,7 @@ class DiagnoseOptions:
 
     # ---- what is searched
     max_effects: int = 3  # effects a verdict names at most: more explains more and costs a round each
-    effects: tuple[str, ...] = EFFECT_NAMES  # the candidates
+    effects: tuple[str, ...] | None = None  # the candidates (None: every registered one, ``candidates()``)
     use_model_error: bool = True  # apply the model-error model MODEL.json carries, if any
     # ---- the search (more: a better search, slower)
     max_evals: int = 120  # Nelder-Mead evaluations per joint fit

@@ -67,6 +67,7 @@ from warpbridge.model.effects import (
     PULLED,
     RELEASED,
     Effects,
+    added_on_warp,
     apply_input_effects,
     core_params,
     drift_shape,
@@ -270,7 +271,7 @@ class Problem:
 
     @staticmethod
     def _key(eff: Effects) -> tuple:
-        return tuple(getattr(eff, f) for f in CORE_FIELDS)
+        return tuple(getattr(eff, f) for f in CORE_FIELDS) + eff.added_core_key
 
     def _core_params(self, eff: Effects) -> BoucWenParams:
         return core_params(self.params, eff)
@@ -366,7 +367,7 @@ class Problem:
 
     def affine(self, eff: Effects, free: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
         """(base, basis): w_meas = base + basis @ theta for the free linear fields (others fixed)."""
-        wc = self.core(eff)
+        wc = added_on_warp(eff, self.t, self.core(eff))
         base = self._lag(wc, eff)
         cols = []
         aero = self.q is not None
@@ -487,7 +488,7 @@ class Problem:
         own = {b.field for b in boxes} | set(flags)
         reset = {f: getattr(self.base, f) for n in movers for f in EFFECT_FIELDS[n][0]
                  if f not in own and f not in lin}
-        start = replace(start, **reset, **flags)
+        start = start.with_values(**reset, **flags)
         params_of = {n: form_parameters(n, start) for n in names}  # held effects: the form they carry
         for n, form in zip(movers, forms, strict=True):
             params_of[n] = sum(not b.fixed for b in form) + len(linear_fields(n))
@@ -495,7 +496,7 @@ class Problem:
 
         def over(boxes: list[Box]):
             def build(s: np.ndarray) -> Effects:
-                return replace(start, **{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
+                return start.with_values(**{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
 
             def cost(s: np.ndarray) -> float:
                 eff, wp = self.solve_linear(build(s), lin)
@@ -527,7 +528,7 @@ class Problem:
         boxes = list(fit.boxes)
 
         def build(s: np.ndarray) -> Effects:
-            return replace(fit.effects, **{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
+            return fit.effects.with_values(**{b.field: b.value(x) for b, x in zip(boxes, s, strict=True)})
 
         def cost(s: np.ndarray) -> float:
             return self.mse(self.solve_linear(build(s), lin, whole)[1], whole)

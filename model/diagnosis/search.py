@@ -60,7 +60,7 @@ def shared_latency_start(eff: Effects, selected: tuple[str, ...], name: str, bas
 
 def _neutral(eff: Effects, name: str, base: Effects) -> Effects:
     """``eff`` with effect ``name`` back at the nominal model's own value."""
-    return replace(eff, **{f: getattr(base, f) for f in EFFECT_FIELDS[name][0]})
+    return eff.with_values(**{f: getattr(base, f) for f in EFFECT_FIELDS[name][0]})
 
 
 def hand_out_order(jobs: list) -> list[int]:

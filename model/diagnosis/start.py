@@ -14,7 +14,7 @@ from warpbridge.model.diagnosis.check import known_error_on_check
 from warpbridge.model.diagnosis.options import DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit, Problem
 from warpbridge.model.diagnosis.search import Explorer
-from warpbridge.model.effect_registry import LOAD_EFFECT
+from warpbridge.model.effect_registry import LOAD_EFFECT, candidates
 from warpbridge.model.initial_state import estimate_plant_start
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
@@ -96,9 +96,10 @@ def set_up(t, u, w, airspeed, model: ModelFile, opt: DiagnoseOptions,
     w_nom = prob.predict(base)
     noise = noise_floor(w)
     e_m = known_error(model, noise, opt.use_model_error)
-    names = [n for n in opt.effects if n != LOAD_EFFECT or prob.has_airspeed]
+    tried = opt.effects if opt.effects is not None else candidates()
+    names = [n for n in tried if n != LOAD_EFFECT or prob.has_airspeed]
     why = "the log has no airspeed" if airspeed is None else "the airspeed is zero throughout the log"
-    skipped = {n: why for n in opt.effects if n not in names}
+    skipped = {n: why for n in tried if n not in names}
     nominal = Fit((), base, w_nom, prob.mse(w_nom, sp.train), prob.mse(w_nom, sp.score), 0)
     ex = Explorer(prob, names, base, nominal, noise ** 2 + e_m ** 2, opt, progress)
     return Setup(prob, ex, noise, e_m, skipped, z0, side, em)
