@@ -45,9 +45,9 @@ def test_an_excess_in_one_scored_block_is_placed_there():
     i0, i1 = scored_blocks(sp)[1]
     r[i0:i1] += 0.2 * np.sin(np.linspace(0, 20, i1 - i0))
     lo = left_over(t, u, r, sp, NOISE ** 2, 0.5)
-    assert lo is not None and lo["mostly"]
-    assert lo["share_of_excess"] > 0.9
-    assert lo["block_s"] == [pytest.approx(t[i0]), pytest.approx(t[i1 - 1])]
+    assert lo is not None and lo.mostly
+    assert lo.share_of_excess > 0.9
+    assert lo.block_s == [pytest.approx(t[i0]), pytest.approx(t[i1 - 1])]
     assert "held out against a floor" in left_over_note(lo, named=True)
 
 
@@ -57,8 +57,8 @@ def test_an_excess_spread_over_every_scored_block_is_not_placed_in_one():
     r = NOISE * np.random.default_rng(3).standard_normal(t.size)
     r[sp.score] += 0.1 * np.sin(2 * np.pi * 0.7 * t[sp.score])
     lo = left_over(t, u, r, sp, NOISE ** 2, 0.5)
-    assert lo is not None and not lo["mostly"]
-    assert lo["share_of_excess"] < 0.5
+    assert lo is not None and not lo.mostly
+    assert lo.share_of_excess < 0.5
     assert left_over_note(lo, named=False) is None
 
 
@@ -73,7 +73,7 @@ def test_a_block_past_the_training_travel_and_airspeed_says_so():
     r = NOISE * np.random.default_rng(4).standard_normal(t.size)
     r[i0:i1] += 0.3
     lo = left_over(t, u, r, sp, NOISE ** 2, 0.5, v)
-    assert {"tendon travel", "airspeed"} <= set(lo["beyond_training"])
+    assert {"tendon travel", "airspeed"} <= set(lo.beyond_training)
     note = left_over_note(lo, named=True)
     assert "outside the training blocks' range" in note and "flies faster there" in note
 

@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 from warpbridge.model.diagnosis.check import known_error_on_check
+from warpbridge.model.diagnosis.left import LeftOver
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit
 from warpbridge.model.diagnosis.readings import bound_meaning
@@ -249,7 +250,7 @@ class Report(Record):
     kept_unnamed: dict
     band_gain_by_airspeed: list[dict]
     shrinkage: Shrinkage
-    left_over: dict
+    left_over: LeftOver | None
     alternatives: list[Alternative]
     split: SplitInfo
     nominal_effects: dict
