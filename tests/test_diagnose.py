@@ -7,6 +7,7 @@ import functools
 import json
 import math
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -1090,39 +1091,41 @@ def test_an_effects_gain_is_split_by_airspeed_and_a_gain_growing_faster_than_the
     every = np.ones(n, bool)
     # what the load changes, in proportion to it: the error without the effect grows with q
     coupled = gain_by_airspeed(w, w + wiggle * q / 0.3, w, q, every)
-    assert coupled["q_fast_kpa"] > 3 * coupled["q_slow_kpa"]
-    assert coupled["fast_over_slow"] > (coupled["q_fast_kpa"] / coupled["q_slow_kpa"]) ** 1.5
+    assert coupled.q_fast_kpa > 3 * coupled.q_slow_kpa
+    assert coupled.fast_over_slow > (coupled.q_fast_kpa / coupled.q_slow_kpa) ** 1.5
     assert grows_with_load(coupled)
     # a change of its own: the same error at any airspeed
     own = gain_by_airspeed(w, w + wiggle, w, q, every)
-    assert own["fast_over_slow"] == pytest.approx(1.0, abs=0.15)
+    assert own.fast_over_slow == pytest.approx(1.0, abs=0.15)
     assert not grows_with_load(own)
     # gains only where the load is high
     fast_only = gain_by_airspeed(w, w + wiggle * (q > 0.25), w, q, every)
-    assert fast_only["fast_over_slow"] is None and grows_with_load(fast_only)
+    assert fast_only.fast_over_slow is None and grows_with_load(fast_only)
     # a log flown at one speed cannot tell, and only the masked samples count
     assert gain_by_airspeed(w, w + wiggle, w, np.full(n, 0.1), every) is None
     assert gain_by_airspeed(w, w + wiggle, w, q, np.zeros(n, bool)) is None
     # standing still (no airspeed, or none logged: q = 0) is not the slow third of the flight
     parked = np.where(np.arange(n) < n // 2, 0.0, q)
     split = gain_by_airspeed(w, w + wiggle * parked / 0.3, w, parked, every)
-    assert split["q_slow_kpa"] > 0 and grows_with_load(split)
+    assert split.q_slow_kpa > 0 and grows_with_load(split)
     assert gain_by_airspeed(w, w + wiggle, w, np.zeros(n), every) is None
     # no gain, or a loss, on the slow third: the comparison needs no ratio
-    loss = dict(own, gain_slow_ms=-1e-4, fast_over_slow=None)
-    assert grows_with_load(loss) and not grows_with_load(dict(loss, gain_fast_ms=-1e-5))
+    loss = replace(own, gain_slow_ms=-1e-4)
+    assert grows_with_load(loss) and not grows_with_load(replace(loss, gain_fast_ms=-1e-5))
 
 
 @pytest.mark.slow
 def test_an_effect_beside_an_aero_load_whose_gain_grows_with_the_load_is_the_loads(monkeypatch):
     import warpbridge.model.diagnosis.selection as diag
+    from warpbridge.model.diagnosis.readings import LoadSplit
 
     pair = TRUE["aero_load"][0].merged(TRUE["friction"][0])
     t, u, w, v = make_log(pair, seed=31)
     kept = diagnose(t, u, w, v, nominal_model())
     assert kept.verdict == ["aero_load", "friction"] or kept.verdict == ["friction", "aero_load"]
     (split,) = kept.report["band_gain_by_airspeed"]  # the friction's own: about alike at any airspeed
-    assert split["effect"] == "friction" and not diag.grows_with_load(split)
+    reading = LoadSplit(*(split[k] for k in ("q_slow_kpa", "q_fast_kpa", "gain_slow_ms", "gain_fast_ms")))
+    assert split["effect"] == "friction" and not diag.grows_with_load(reading)
     assert any(n.startswith("friction beside aero_load") for n in kept.report["notes"])
     # the same log, read as if the friction's gain grew with the load: it goes to the load
     monkeypatch.setattr(diag, "grows_with_load", lambda r: True)

@@ -163,7 +163,7 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     sized.expect([path] + alt_paths)
     alternatives = [Alternative(decision=d, verdict=list(alt.named), floor_raised_by_ms=up,
                                 kept_unnamed=sorted(alt.unnamed), heldout_rms_after_deg=math.sqrt(alt.fit.score_mse),
-                                to_aero_load=[{"effect": b} | r for b, r in alt.to_load.items()],
+                                to_aero_load=[{"effect": b} | r.to_dict() for b, r in alt.to_load.items()],
                                 effects={n: sized.of(alt).values([n])[n] for n in alt.named})
                     for d, alt, up in zip(opt.alternatives, alt_paths, alt_raised, strict=True)]
     raised = carried.raised_by_ms if carried is not None else 0.0
@@ -204,11 +204,11 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     for h in hits:
         notes.append(h["meaning"])
     notes += widened_notes(cur, selected)
-    by_airspeed = [{"effect": b} | r for b, r in path.kept_by_airspeed.items()]
+    by_airspeed = [{"effect": b} | r.to_dict() for b, r in path.kept_by_airspeed.items()]
     notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
     if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor
         notes += whole_loop_notes(selected, cur.effects)
-    notes += [airspeed_note(b) for b in by_airspeed]
+    notes += [airspeed_note(b, r) for b, r in path.kept_by_airspeed.items()]
     left = left_over(t, u, r1, sp, floor2, opt.decision.min_gain, airspeed)
     if (left_note := left_over_note(left, bool(selected))) is not None:
         notes.append(left_note)

@@ -12,6 +12,7 @@ import numpy as np
 
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit, effect_of
+from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.diagnosis.search import Explorer, Judged
 from warpbridge.model.effect_registry import BAND_EFFECTS, BOUND_HINTS, LOAD_EFFECT, TENSION_CHANGES
 from warpbridge.model.effects import (
@@ -228,9 +229,28 @@ def whole_loop_notes(selected: list[str], eff: Effects) -> list[str]:
             f"apart, compare the sheath's routing and the tendon's tension at rest with the bench's"]
 
 
+@dataclass(frozen=True)
+class LoadSplit(Record):
+    """What an effect gains (drop of the squared error, deg^2 per sample) on the slowest and the fastest third
+    of the flown samples, and their mean dynamic pressures (kPa)."""
+
+    q_slow_kpa: float
+    q_fast_kpa: float
+    gain_slow_ms: float
+    gain_fast_ms: float
+
+    @property
+    def fast_over_slow(self) -> float | None:
+        """The fast third's gain over the slow third's; None when the slow third gains nothing (or loses)."""
+        return self.gain_fast_ms / self.gain_slow_ms if self.gain_slow_ms > 0 else None
+
+    def to_dict(self) -> dict:
+        return super().to_dict() | {"fast_over_slow": self.fast_over_slow}
+
+
 def gain_by_airspeed(w: np.ndarray, w_without: np.ndarray, w_with: np.ndarray, q: np.ndarray,
                      mask: np.ndarray, min_samples: int = DiagnoseOptions.load_min_samples,
-                     spread: float = DiagnoseOptions.load_spread) -> dict | None:
+                     spread: float = DiagnoseOptions.load_spread) -> LoadSplit | None:
     """What an effect gains (drop of the squared error, deg^2 per sample) on the slowest and the fastest
     third of the ``mask`` samples flown (q > 0) by dynamic pressure ``q`` (kPa). None when fewer than
     ``min_samples`` such samples, or when the two thirds hardly differ in airspeed (the fast third's mean q
@@ -246,12 +266,10 @@ def gain_by_airspeed(w: np.ndarray, w_without: np.ndarray, w_with: np.ndarray, q
     q_slow, q_fast = float(np.mean(qm[slow])), float(np.mean(qm[fast]))
     if not q_fast > spread * q_slow:
         return None
-    g_slow, g_fast = float(np.mean(g[slow])), float(np.mean(g[fast]))
-    return {"q_slow_kpa": q_slow, "q_fast_kpa": q_fast, "gain_slow_ms": g_slow, "gain_fast_ms": g_fast,
-            "fast_over_slow": g_fast / g_slow if g_slow > 0 else None}  # None: no gain (or a loss) when slow
+    return LoadSplit(q_slow, q_fast, float(np.mean(g[slow])), float(np.mean(g[fast])))
 
 
-def grows_with_load(r: dict) -> bool:
+def grows_with_load(r: LoadSplit) -> bool:
     """An effect's gain grows faster than the dynamic pressure between the slow and the fast third.
 
     A heuristic from two readings: a change of the sheath's own friction or rig gains about alike at any
@@ -259,21 +277,19 @@ def grows_with_load(r: dict) -> bool:
     roughly as the square of the change, ~(q_fast / q_slow)^2 (roughly: the fitted constant takes up part of
     it, and the slow third's gain can even turn negative). The line is drawn halfway between the two on a
     log scale, g_fast / g_slow > q_fast / q_slow (compared multiplied out, so no division by a zero gain)."""
-    return r["gain_fast_ms"] * r["q_slow_kpa"] > max(r["gain_slow_ms"], 0.0) * r["q_fast_kpa"]
+    return r.gain_fast_ms * r.q_slow_kpa > max(r.gain_slow_ms, 0.0) * r.q_fast_kpa
 
 
-def load_ratio_text(r: dict) -> str:
-    q = (f"{r['q_fast_kpa'] / r['q_slow_kpa']:.1f}x the dynamic pressure ({r['q_slow_kpa']:.2f} -> "
-         f"{r['q_fast_kpa']:.2f} kPa)")
-    if r["fast_over_slow"] is None:
-        return (f"nothing (or a loss) on the slowest third of the log, {r['gain_fast_ms']:.2g} deg^2 on the "
-                f"fastest, at {q}")
-    return f"{r['fast_over_slow']:.1f}x as much on the fastest third of the log as on the slowest, at {q}"
+def load_ratio_text(r: LoadSplit) -> str:
+    q = f"{r.q_fast_kpa / r.q_slow_kpa:.1f}x the dynamic pressure ({r.q_slow_kpa:.2f} -> {r.q_fast_kpa:.2f} kPa)"
+    if r.fast_over_slow is None:
+        return f"nothing (or a loss) on the slowest third of the log, {r.gain_fast_ms:.2g} deg^2 on the fastest, at {q}"
+    return f"{r.fast_over_slow:.1f}x as much on the fastest third of the log as on the slowest, at {q}"
 
 
-def airspeed_note(r: dict) -> str:
+def airspeed_note(effect: str, r: LoadSplit) -> str:
     """The report's reading of ``gain_by_airspeed`` for an effect kept beside an aero load."""
-    return (f"{r['effect']} beside aero_load: on the held-out blocks it gains {load_ratio_text(r)}; what the load's "
+    return (f"{effect} beside aero_load: on the held-out blocks it gains {load_ratio_text(r)}; what the load's "
             f"tension changes (the band, capstan law, or the compliance) would gain faster than the pressure "
             f"grows, so this is a change of its own")
 

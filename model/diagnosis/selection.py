@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from warpbridge.model.diagnosis.options import Decision
 from warpbridge.model.diagnosis.problem import Fit
 from warpbridge.model.diagnosis.readings import (
+    LoadSplit,
     TensionBand,
     ViscousLag,
     gain_by_airspeed,
@@ -39,7 +40,7 @@ class Dropped(Record):
     p_value: float | None = None
     share_when_kept: float | None = None
     reason: str
-    gain_by_airspeed: dict | None = None
+    gain_by_airspeed: LoadSplit | None = None
 
 
 @dataclass
@@ -56,8 +57,8 @@ class Path:
     together: dict[str, PairedGain] = field(default_factory=dict)  # the first of a pair that entered together:
     # its test given the second
     from_runner_up: bool = False  # round 2 went on from the first round's runner-up
-    to_load: dict[str, dict] = field(default_factory=dict)  # effects given to the aero load: their airspeed split
-    kept_by_airspeed: dict[str, dict] = field(default_factory=dict)  # named beside the load: their split
+    to_load: dict[str, LoadSplit] = field(default_factory=dict)  # effects given to the aero load: their airspeed split
+    kept_by_airspeed: dict[str, LoadSplit] = field(default_factory=dict)  # named beside the load: their split
     # chosen and kept in the model as another effect's part
     unnamed: dict[str, ViscousLag | TensionBand] = field(default_factory=dict)
 
@@ -163,8 +164,8 @@ def decide(ex: Explorer, d: Decision, max_effects: int) -> Path:
                 cur = f
                 changed = True
                 break
-    to_load: dict[str, dict] = {}
-    kept_by_airspeed: dict[str, dict] = {}
+    to_load: dict[str, LoadSplit] = {}
+    kept_by_airspeed: dict[str, LoadSplit] = {}
     for b in [b for b in LOAD_COUPLED if b in sel and LOAD_EFFECT in sel]:
         f0 = ex.without(sel, b, cur)
         r = gain_by_airspeed(ex.w, f0.w_pred, cur.w_pred, ex.prob.q, ex.prob.split.score, ex.opt.load_min_samples,
