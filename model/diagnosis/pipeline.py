@@ -68,15 +68,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from warpbridge.model.diagnosis.left import left_over, left_over_note
-from warpbridge.model.diagnosis.options import DiagnoseOptions
-from warpbridge.model.diagnosis.problem import Split
+from warpbridge.model.diagnosis.blocks import Split
+from warpbridge.model.diagnosis.left import left_over
+from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.readings import (
-    airspeed_note,
     bound_meaning,
-    tension_band_notes,
-    whole_loop_notes,
-    widened_notes,
 )
 from warpbridge.model.diagnosis.report import (
     Alternative,
@@ -89,18 +85,22 @@ from warpbridge.model.diagnosis.report import (
     carry_note,
     check_note,
     em_summary,
+    report_notes,
     rounds_along,
 )
+from warpbridge.model.diagnosis.selection import Path
 from warpbridge.model.diagnosis.sizing import WholeLogSizes
-from warpbridge.model.diagnosis.start import bench_known_error, set_up
+from warpbridge.model.diagnosis.start import Setup, bench_known_error, set_up
 from warpbridge.model.diagnosis.stats import (
+    TestResult,
     input_independence,
     ljung_box,
     prewhiten,
 )
-from warpbridge.model.diagnosis.transfer import carry_check, decide_carried
+from warpbridge.model.diagnosis.transfer import Carried, Carry, carry_check, decide_carried
 from warpbridge.model.diagnosis.where import Cells, cells, gap_closed, split
 from warpbridge.model.effects import (
+    Effects,
     slack_side_name,
 )
 from warpbridge.model.modelfile import FitQuality, ModelFile
@@ -126,123 +126,146 @@ class Diagnosis:
     records: Report | None = field(default=None, repr=False)  # the report as its tree of records
 
 
-def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
-             progress: Callable[[str, int, int], None] | None = None) -> Diagnosis:
-    """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None).
+@dataclass(frozen=True)
+class Gap:
+    """Where the nominal model's gap lies (stage 1): the residual split over the cells against the bench's
+    floor, and the residual tests."""
 
-    ``progress(stage, i, n)`` is called as the work advances (no I/O here)."""
-    opt = options or DiagnoseOptions()
-    su = set_up(t, u, w, airspeed, model, opt, progress)
-    prob, ex, noise, e_m, skipped = su.prob, su.ex, su.noise, su.e_m, su.skipped
-    z0, side, em = su.z0, su.slack_side, su.error_model
-    t, u, w = prob.t, prob.u, prob.w
-    sp, base, names, nominal, floor2 = prob.split, ex.base, ex.names, ex.nominal, ex.floor2
-    w_nom = nominal.w_pred
-    r0 = w - w_nom
-    analysed = sp.train | sp.score
-    cl = cells(t, u, w_nom, airspeed)
-    where = split(t, u, r0, cl, analysed, noise, e_m)
+    cells: Cells
+    residual: np.ndarray = field(repr=False)  # measured less the nominal's prediction, deg
+    analysed: np.ndarray = field(repr=False)  # the training and scored samples
+    where: dict
+    whiteness: TestResult
+    input_independence: TestResult
+
+
+def where_it_lies(su: Setup, airspeed) -> Gap:
+    """Stage 1: the nominal's residual split by phase, level, band, time and airspeed, and tested."""
+    prob, nominal = su.prob, su.ex.nominal
+    r0 = prob.w - nominal.w_pred
+    analysed = prob.split.train | prob.split.score
+    cl = cells(prob.t, prob.u, nominal.w_pred, airspeed)
     ra = r0[analysed]
-    white = ljung_box(ra)
-    indep = input_independence(prewhiten(u[analysed]), ra[1:])
+    return Gap(cl, r0, analysed, split(prob.t, prob.u, r0, cl, analysed, su.noise, su.e_m), ljung_box(ra),
+               input_independence(prewhiten(prob.u[analysed]), ra[1:]))
 
-    alt_raised: list[float] = []
-    # what a check log already put in the known error beyond the bench's: the shortfall raises it only past that
-    measured = e_m ** 2 - bench_known_error(model, noise, opt.use_model_error) ** 2
-    carry = carry_check(ex, em, side, measured)
-    alt_paths = []
+
+@dataclass(frozen=True)
+class Decided:
+    """Stages 2 and 3: the verdict's path and each alternative decision's, with what the floor transfer
+    raised for them, and every distinct verdict sized on the whole log."""
+
+    carry: Carry | None
+    path: Path
+    carried: Carried | None
+    alternatives: list[tuple[Decision, Path, float]]  # (decision, its path, the floor it raised, deg^2)
+    sized: WholeLogSizes
+
+    @property
+    def raised(self) -> float:
+        return self.carried.raised_by_ms if self.carried is not None else 0.0
+
+
+def decide_all(su: Setup, model: ModelFile, opt: DiagnoseOptions, progress) -> Decided:
+    """The search and the selection under the decision and each alternative, with the floor transfer (a
+    check log's measured error counts against the shortfall), then the verdicts sized on every sample."""
+    ex = su.ex
+    measured = su.e_m ** 2 - bench_known_error(model, su.noise, opt.use_model_error) ** 2
+    carry = carry_check(ex, su.error_model, su.slack_side, measured)
+    alternatives = []
     with ex.workers():
         path, carried = decide_carried(ex, opt.decision, opt.max_effects, carry)
         for k, d in enumerate(opt.alternatives):
             if progress:
                 progress("alternative decisions", k, len(opt.alternatives))
             alt, alt_carried = (path, carried) if d == opt.decision else decide_carried(ex, d, opt.max_effects, carry)
-            alt_paths.append(alt)
-            alt_raised.append(alt_carried.raised_by_ms if alt_carried else 0.0)
-    sized = WholeLogSizes(prob, opt.max_evals, progress)
-    sized.expect([path] + alt_paths)
-    alternatives = [Alternative(decision=d, verdict=list(alt.named), floor_raised_by_ms=up,
-                                kept_unnamed=sorted(alt.unnamed), heldout_rms_after_deg=math.sqrt(alt.fit.score_mse),
-                                to_aero_load=[{"effect": b} | r.to_dict() for b, r in alt.to_load.items()],
-                                effects={n: sized.of(alt).values([n])[n] for n in alt.named})
-                    for d, alt, up in zip(opt.alternatives, alt_paths, alt_raised, strict=True)]
-    raised = carried.raised_by_ms if carried is not None else 0.0
-    e_known = math.sqrt(e_m ** 2 + raised)  # the known error the report judges by: raised where it did not carry
-    if raised > 0:  # the rest of the report on the raised floor
-        floor2 = floor2 + raised
-        where = split(t, u, r0, cl, analysed, noise, e_known)
+            alternatives.append((d, alt, alt_carried.raised_by_ms if alt_carried else 0.0))
+    sized = WholeLogSizes(su.prob, opt.max_evals, progress)
+    sized.expect([path] + [alt for _, alt, _ in alternatives])
+    return Decided(carry, path, carried, alternatives, sized)
+
+
+def alternatives_of(decided: Decided) -> list[Alternative]:
+    """The report's verdict under each alternative decision."""
+    return [Alternative(decision=d, verdict=list(alt.named), floor_raised_by_ms=up, kept_unnamed=sorted(alt.unnamed),
+                        heldout_rms_after_deg=math.sqrt(alt.fit.score_mse),
+                        to_aero_load=[{"effect": b} | r.to_dict() for b, r in alt.to_load.items()],
+                        effects={n: decided.sized.of(alt).values([n])[n] for n in alt.named})
+            for d, alt, up in decided.alternatives]
+
+
+def augmented_model(model: ModelFile, effects: Effects, selected: list[str], train_rms: float, heldout_rms: float,
+                    nominal_rms: float, noise: float) -> ModelFile:
+    """MODEL.json of the nominal model with the verdict's effects, and how it fits the log."""
+    extra = {"method": "warpbridge diagnose", "verdict": list(selected), "nominal_heldout_rms_deg": nominal_rms}
+    if "travel_mm" in model.fit.extra:  # the nominal's parameters were identified there, whatever the effects add
+        extra["travel_mm"] = model.fit.extra["travel_mm"]
+    fitq = FitQuality(train_rms_deg=train_rms, heldout_rms_deg=heldout_rms, noise_deg=noise, extra=extra)
+    meta = dict(model.meta)
+    meta["augmented_by"] = "warpbridge diagnose"
+    meta["verdict"] = list(selected)
+    return ModelFile(params=model.params, effects=effects, z0=model.z0, fit=fitq, meta=meta,
+                     model_error=model.model_error)
+
+
+def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | None = None,
+             progress: Callable[[str, int, int], None] | None = None) -> Diagnosis:
+    """Diagnose the gap between ``model`` and a cleaned log (t s increasing, u mm, w deg, airspeed m/s or None).
+
+    ``progress(stage, i, n)`` is called as the work advances (no I/O here)."""
+    opt = options or DiagnoseOptions()
+    su = set_up(t, u, w, airspeed, model, opt, progress)  # stage 0
+    prob, ex, noise, e_m = su.prob, su.ex, su.noise, su.e_m
+    t, u, w, sp, nominal = prob.t, prob.u, prob.w, prob.split, ex.nominal
+    gap = where_it_lies(su, airspeed)  # stage 1
+    decided = decide_all(su, model, opt, progress)  # stages 2-4
+    path, carried, raised = decided.path, decided.carried, decided.raised
+    alternatives = alternatives_of(decided)
+    # the known error the report judges by: raised where the bench's correction did not carry, and the rest of
+    # the report on that floor
+    e_known = math.sqrt(e_m ** 2 + raised)
+    floor2 = ex.floor2 + raised
+    where = split(t, u, gap.residual, gap.cells, gap.analysed, noise, e_known) if raised > 0 else gap.where
     selected = list(path.named)
     cur = path.fit
     rounds, ambiguities, chosen_conf = rounds_along(ex.at_floor(floor2), path, opt)
-    w_aug = cur.w_pred if selected else w_nom
+    w_aug = cur.w_pred if selected else nominal.w_pred
     r1 = w - w_aug
-
-    shrink = split(t, u, r0, cl, sp.score, noise, e_known, r_after=r1)
-    mse0, mse1 = prob.mse(w_nom, sp.score), prob.mse(w_aug, sp.score)
+    shrink = split(t, u, gap.residual, gap.cells, sp.score, noise, e_known, r_after=r1)
+    mse0, mse1 = prob.mse(nominal.w_pred, sp.score), prob.mse(w_aug, sp.score)
     shrinkage = Shrinkage(math.sqrt(mse0), math.sqrt(mse1), gap_closed(mse0, mse1, noise ** 2),
                           gap_closed(mse0, mse1, floor2),
                           {k: v for k, v in shrink.items() if k not in ("scores", "dominant", "dominant_cell")})
-    whole = sized.of(path)  # the verdict's effects sized on every analysed sample; ``cur`` is the held-out one
+    whole = decided.sized.of(path)  # the verdict's effects sized on every analysed sample; ``cur``: held-out
     hits = whole.bound_hits() if selected else []
     for h in hits:
         h["meaning"] = bound_meaning(h)
         chosen_conf[h["effect"]] = chosen_conf.get(h["effect"], 0.0) * opt.bound_confidence
-    cand = candidate_table(names, skipped, rounds, path, chosen_conf, cur, nominal, hits)
-    notes = list(path.notes)
-    if raised > 0:
-        nom = carry.nominal
-        notes.append(f"the bench's model-error correction does not carry to this log: it lowers the squared error "
-                     f"by {nom.bench_gain:.2g} deg^2 on the bench but {nom.field_gain:.2g} here "
-                     f"(p={nom.p_value:.2g}); the part it did not carry is model error the bench could not see, "
-                     f"so the known error is taken as {e_known:.3f} deg "
-                     f"instead of {e_m:.3f} (a second bench log of another realisation of the input measures "
-                     f"it: identify --check)")
-        if not carried.settled:
-            notes.append("the raise did not settle: the verdict asks for a different raise than the one it was "
-                         "decided at, and the lower raise gives another verdict; the verdict of the higher one is "
-                         "kept (the stricter floor)")
-    for h in hits:
-        notes.append(h["meaning"])
-    notes += widened_notes(cur, selected)
-    by_airspeed = [{"effect": b} | r.to_dict() for b, r in path.kept_by_airspeed.items()]
-    notes += tension_band_notes(selected, airspeed_checked=bool(by_airspeed))
-    if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor
-        notes += whole_loop_notes(selected, cur.effects)
-    notes += [airspeed_note(b, r) for b, r in path.kept_by_airspeed.items()]
-    left = left_over(t, u, r1, sp, floor2, opt.decision.min_gain, airspeed)
-    if (left_note := left_over_note(left, bool(selected))) is not None:
-        notes.append(left_note)
-    residual_is_noise = white.passed and indep.passed
-    if not selected and not residual_is_noise:
-        notes.append("the residual is structured but no effect explains a significant, material share of it: "
-                     "it is the model's own error (re-identify on a richer log, or diagnose a longer one)")
-    eff_out = whole.effects if selected else base
-    extra = {"method": "warpbridge diagnose", "verdict": list(selected), "nominal_heldout_rms_deg": math.sqrt(mse0)}
-    if "travel_mm" in model.fit.extra:  # the nominal's parameters were identified there, whatever the effects add
-        extra["travel_mm"] = model.fit.extra["travel_mm"]
-    fitq = FitQuality(train_rms_deg=math.sqrt(prob.mse(w_aug, sp.train)), heldout_rms_deg=math.sqrt(mse1),
-                      noise_deg=noise, extra=extra)
-    meta = dict(model.meta)
-    meta["augmented_by"] = "warpbridge diagnose"
-    meta["verdict"] = list(selected)
-    augmented = ModelFile(params=model.params, effects=eff_out, z0=model.z0, fit=fitq, meta=meta,
-                          model_error=model.model_error)
+    cand = candidate_table(ex.names, su.skipped, rounds, path, chosen_conf, cur, nominal, hits)
+    left = left_over(t, u, r1, sp, floor2, opt.decision.min_gain, airspeed)  # stage 5
+    residual_is_noise = gap.whiteness.passed and gap.input_independence.passed
+    notes = report_notes(path, decided.carry, carried, e_m, e_known, hits, cur, left, residual_is_noise)
+    augmented = augmented_model(model, whole.effects if selected else ex.base, selected,
+                                math.sqrt(prob.mse(w_aug, sp.train)), math.sqrt(mse1), math.sqrt(mse0), noise)
     report = Report(
         verdict=list(selected), effects={n: whole.values([n])[n] for n in selected},
         effects_on_training_blocks={n: cur.values([n])[n] for n in selected},
         samples=int(t.size), duration_s=float(t[-1] - t[0]),
         noise_deg=noise, model_error_deg=e_m, floor_deg=math.sqrt(floor2),
         model_error_from_check=check_note(model, noise, opt.use_model_error),
-        model_error_carried=carry_note(carry, carried, e_known),
+        model_error_carried=carry_note(decided.carry, carried, e_known),
         decision=opt.decision,
-        initial_state=InitialState(z0, slack_taken_up_by=slack_side_name(side) if model.effects.has_slack else None),
-        model_error_model=em_summary(model.model_error, em is not None),
+        initial_state=InitialState(su.z0, slack_taken_up_by=slack_side_name(su.slack_side)
+                                   if model.effects.has_slack else None),
+        model_error_model=em_summary(model.model_error, su.error_model is not None),
         residual_is_noise=residual_is_noise,
-        tests=Tests(white, indep),
+        tests=Tests(gap.whiteness, gap.input_independence),
         where=where, candidates=cand, bound_hits=hits, ambiguities=ambiguities, dropped=path.dropped,
         kept_unnamed={n: {"fitted": whole.values([n])[n]} | v.to_dict() for n, v in path.unnamed.items()},
-        band_gain_by_airspeed=by_airspeed, shrinkage=shrinkage, left_over=left, alternatives=alternatives,
+        band_gain_by_airspeed=[{"effect": b} | r.to_dict() for b, r in path.kept_by_airspeed.items()],
+        shrinkage=shrinkage, left_over=left, alternatives=alternatives,
         split=SplitInfo([b + 1 for b in sp.pattern], sp.start, int(sp.train.sum()), int(sp.score.sum()),
                         int(sp.chunks.max() + 1)),
-        nominal_effects=base.to_dict(), notes=notes, model_evaluations=prob.evaluations)
-    return Diagnosis(list(selected), report.to_dict(), augmented, t, u, w, w_nom, w_aug, sp, cl, report)
+        nominal_effects=ex.base.to_dict(), notes=notes, model_evaluations=prob.evaluations)
+    return Diagnosis(list(selected), report.to_dict(), augmented, t, u, w, nominal.w_pred, w_aug, sp, gap.cells,
+                     report)

@@ -8,10 +8,16 @@ import math
 from dataclasses import dataclass, field, replace
 
 from warpbridge.model.diagnosis.check import known_error_on_check
-from warpbridge.model.diagnosis.left import LeftOver
+from warpbridge.model.diagnosis.left import LeftOver, left_over_note
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.problem import Fit
-from warpbridge.model.diagnosis.readings import bound_meaning
+from warpbridge.model.diagnosis.readings import (
+    airspeed_note,
+    bound_meaning,
+    tension_band_notes,
+    whole_loop_notes,
+    widened_notes,
+)
 from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.diagnosis.search import Explorer, Judged
 from warpbridge.model.diagnosis.selection import Dropped, Path
@@ -392,3 +398,35 @@ def check_note(model: ModelFile, noise: float, use_model_error: bool) -> CheckNo
         return None
     chk = model.fit.extra.get("check", {})
     return CheckNote(check, check > bench_known_error(model, noise, use_model_error), chk.get("log"))
+
+
+def report_notes(path: Path, carry: Carry | None, carried: Carried | None, e_m: float, e_known: float,
+                 hits: list[dict], fit: Fit, left: LeftOver | None, residual_is_noise: bool) -> list[str]:
+    """The report's notes, in order: the selection's own, the floor transfer's, the search edges', the
+    widened searches', the tension and load readings', what is left over, and a residual no effect explains."""
+    selected = list(path.named)
+    notes = list(path.notes)
+    if carried is not None and carried.raised_by_ms > 0:
+        nom = carry.nominal
+        notes.append(f"the bench's model-error correction does not carry to this log: it lowers the squared error "
+                     f"by {nom.bench_gain:.2g} deg^2 on the bench but {nom.field_gain:.2g} here "
+                     f"(p={nom.p_value:.2g}); the part it did not carry is model error the bench could not see, "
+                     f"so the known error is taken as {e_known:.3f} deg "
+                     f"instead of {e_m:.3f} (a second bench log of another realisation of the input measures "
+                     f"it: identify --check)")
+        if not carried.settled:
+            notes.append("the raise did not settle: the verdict asks for a different raise than the one it was "
+                         "decided at, and the lower raise gives another verdict; the verdict of the higher one is "
+                         "kept (the stricter floor)")
+    notes += [h["meaning"] for h in hits]
+    notes += widened_notes(fit, selected)
+    notes += tension_band_notes(selected, airspeed_checked=bool(path.kept_by_airspeed))
+    if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor
+        notes += whole_loop_notes(selected, fit.effects)
+    notes += [airspeed_note(b, r) for b, r in path.kept_by_airspeed.items()]
+    if (left_note := left_over_note(left, bool(selected))) is not None:
+        notes.append(left_note)
+    if not selected and not residual_is_noise:
+        notes.append("the residual is structured but no effect explains a significant, material share of it: "
+                     "it is the model's own error (re-identify on a richer log, or diagnose a longer one)")
+    return notes
