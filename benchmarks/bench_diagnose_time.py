@@ -2,10 +2,13 @@
 
     python benchmarks/bench_diagnose_time.py [--compare threads|input-terms|band-travel|time-terms|opening-cap|
                                                         trial-reach|blow-up|passes|kept-runs|processes|schedule|
-                                                        reverse-refits]
+                                                        reverse-refits|code-before --against REV]
                                              [--threads 2] [--seed 2] [--plant 0] [--cases 10,12] [--families ...]
                                              [--case FAMILY/SEED/PLANT/CASE ...] [--repeats 1] [--cache DIR]
 
+``--compare code-before --against REV``: this checkout against the code of git revision REV, each run in a
+process of its own (REV's folders extracted with ``git archive`` and imported as ``warpbridge`` in place of this
+one's), both on one thread; a reshaping must leave the reports identical.
 ``--compare threads`` (the default): one thread (``--jobs 1``, the code before the candidates were fitted side
 by side) against ``--threads`` workers (``--jobs N``: worker processes since 18543fc, threads before; the
 command's default is the cores free at its start).
@@ -266,6 +269,60 @@ sys.exit(code)
 
 KERNEL_BASELINES = {"trial-reach": "TRIAL_REACH=inf", "blow-up": "BLOWUP_SPARE=inf"}  # the compiled-in constants
 
+_REVISION_RUN = """
+import sys, time
+# the code of the revision in sys.argv[1] as the package warpbridge: this checkout's (an editable install's
+# finder, or an installed wheel) out of the way
+sys.meta_path = [f for f in sys.meta_path if "editable" not in repr(f).lower()]
+sys.path.insert(0, sys.argv[1])
+import warpbridge.model
+assert warpbridge.model.__file__.startswith(sys.argv[1]), warpbridge.model.__file__
+from warpbridge.bridge.cli import main
+if main(["diagnose", sys.argv[2], "--quiet", "--jobs", "1"] + sys.argv[4:]) != 0:
+    sys.exit("warm-up failed")
+t0 = time.perf_counter()
+code = main(["diagnose", sys.argv[3], "--quiet", "--jobs", "1"] + sys.argv[4:])
+print(time.perf_counter() - t0)
+sys.exit(code)
+"""
+
+
+def revision_tree(rev: str, where: Path) -> Path:
+    """A folder holding the package ``warpbridge`` of git revision ``rev`` (its four folders from ``git
+    archive``), to put first on ``sys.path``."""
+    src = where / "src"
+    src.mkdir(parents=True, exist_ok=True)
+    archive = subprocess.run(["git", "-C", str(blind.ROOT), "archive", rev, "bridge", "model", "hw", "sitl"],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
+    pkg = where / "pkg" / "warpbridge"
+    pkg.mkdir(parents=True, exist_ok=True)
+    for name in ("bridge", "model", "hw", "sitl"):
+        link = pkg / name
+        if not link.exists():
+            link.symlink_to(src / name, target_is_directory=True)
+    return where / "pkg"
+
+
+def process_diagnose(field_csv: Path, model: Path, out: Path, tree: Path | None, cache: Path) -> float:
+    """Seconds of one plain ``diagnose`` on one thread in a process of its own, of the code in ``tree``
+    (``revision_tree``; None: this checkout's), after an untimed warm-up on the log's first 10 s."""
+    lines = field_csv.read_text().splitlines(keepends=True)
+    t0 = float(lines[1].split(",")[0])
+    head = field_csv.with_name(field_csv.stem + "-head.csv")
+    head.write_text("".join([lines[0]] + [ln for ln in lines[1:] if float(ln.split(",")[0]) - t0 < 10.0]))
+    rest = ["--model", str(model), "--report", str(out)]
+    if tree is None:
+        argv = [sys.executable, "-c", _KERNEL_VARIANT_RUN, "", "diagnose", str(head), str(field_csv), *rest]
+        numba = cache / "numba" / "kernels-shipped"
+    else:
+        argv = [sys.executable, "-c", _REVISION_RUN, str(tree), str(head), str(field_csv), *rest]
+        numba = tree.parent / "numba"
+    proc = subprocess.run(argv, env=dict(os.environ, NUMBA_CACHE_DIR=str(numba)), capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"diagnose failed: {proc.stderr[-2000:]}")
+    return float(proc.stdout.strip().splitlines()[-1])
+
 
 def kernel_variant_diagnose(field_csv: Path, model: Path, out: Path, overrides: str, cache: Path) -> float:
     """Seconds of one plain ``diagnose`` in a process of its own whose kernels are compiled with the
@@ -288,9 +345,13 @@ def _strip(report: dict) -> dict:
     return {k: v for k, v in report.items() if k not in ("seconds", "created", "model_evaluations")}
 
 
-def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: str, threads: int, cache: Path
-                   ) -> tuple[float, dict]:
-    """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline."""
+def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: str, threads: int, cache: Path,
+                   tree: Path | None = None) -> tuple[float, dict]:
+    """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline (for
+    ``code-before``, the code in ``tree``)."""
+    if compare == "code-before":
+        seconds = process_diagnose(field_csv, model, out, None if new else tree, cache)
+        return seconds, json.loads(out.read_text())
     if compare in KERNEL_BASELINES:
         seconds = kernel_variant_diagnose(field_csv, model, out, "" if new else KERNEL_BASELINES[compare], cache)
         return seconds, json.loads(out.read_text())
@@ -349,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--compare", choices=("threads", "input-terms", "band-travel", "time-terms", "opening-cap",
                                               "trial-reach", "blow-up", "passes", "kept-runs", "processes",
-                                              "schedule", "reverse-refits"),
+                                              "schedule", "reverse-refits", "code-before"),
                     default="threads",
                     help="threads: --jobs 1 against --jobs N; input-terms: the correction's input terms reused "
                          "against recomputed; band-travel: the loop-shape terms stretched in travel with the band "
@@ -366,7 +427,9 @@ def main(argv: list[str] | None = None) -> int:
                          "the jobs handed out longest first and the beam's second rounds together, against in "
                          "the order asked for and one round at a time, on --threads workers; reverse-refits: "
                          "round 2's refit from the new effect's own fit also for every candidate that closed a "
-                         "share alone, against for the two of best screen only, on --threads workers")
+                         "share alone, against for the two of best screen only, on --threads workers; "
+                         "code-before: this checkout against the code of --against, one thread each")
+    ap.add_argument("--against", default="", metavar="REV", help="the git revision --compare code-before runs")
     ap.add_argument("--threads", type=int, default=2,
                     help="workers of the shipped variant (--compare threads; of both with kept-runs, processes, "
                          "schedule and reverse-refits)")
@@ -388,7 +451,8 @@ def main(argv: list[str] | None = None) -> int:
                            "opening-cap": ("uncapped", "capped"), "trial-reach": ("unbounded", "bounded"),
                            "blow-up": ("to the cap", "ended"), "passes": ("before", "passes"),
                            "kept-runs": ("per thread", "kept"), "processes": ("threads", "processes"),
-                           "schedule": ("as asked", "longest"), "reverse-refits": ("best two", "alone too")}[a.compare]
+                           "schedule": ("as asked", "longest"), "reverse-refits": ("best two", "alone too"),
+                           "code-before": (a.against or "before", "this code")}[a.compare]
     what = {"threads": f"one thread (baseline) vs {a.threads} worker processes (--jobs {a.threads})",
             "input-terms": "input terms reused (shipped) vs recomputed (baseline), one thread",
             "band-travel": "loop-shape terms stretched in travel with the band (shipped) vs on the bench's travel "
@@ -413,7 +477,10 @@ def main(argv: list[str] | None = None) -> int:
             "reverse-refits": "round 2's refit from the new effect's own fit for the two of best screen and every "
                               "candidate that alone closed a share of the gap (shipped) vs the two of best screen "
                               f"only (baseline), {a.threads} workers",
+            "code-before": f"this checkout vs revision {a.against} (baseline), one thread, each in its own process",
             }[a.compare]
+    if a.compare == "code-before" and not a.against:
+        ap.error("--compare code-before needs --against REV")
     by_verdict = a.compare in ("band-travel", "reverse-refits")  # the two codes differ there: compare what they name
     same_what = "same verdict" if by_verdict else "same report"
     if a.case:
@@ -429,6 +496,7 @@ def main(argv: list[str] | None = None) -> int:
           f"core runs", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
+        tree = revision_tree(a.against, work / "before") if a.compare == "code-before" else None
         for n, (family, seed, index, k) in enumerate(todo):
             plant = draw_plants(seed, family, index + 1)[index]
             model = blind.identified_model(plant, seed, index, args, work)
@@ -440,7 +508,7 @@ def main(argv: list[str] | None = None) -> int:
             for r in range(a.repeats):
                 order = (False, True) if (n + k + r) % 2 == 0 else (True, False)
                 got = {v: timed_diagnose(field_csv, model, work / f"rep-{v}.json", v, a.compare, a.threads,
-                                             a.cache)
+                                             a.cache, tree)
                        for v in order}
                 (tb, rb), (tr, rr) = got[False], got[True]
                 same = rb["verdict"] == rr["verdict"] if by_verdict else _strip(rb) == _strip(rr)
