@@ -3,10 +3,7 @@ each in one place with what it trades off."""
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,6 @@ progress goes to an optional callback.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -104,8 +103,6 @@ from warpbridge.model.effects import (
     slack_side_name,
 )
 from warpbridge.model.modelfile import FitQuality, ModelFile
-
-log = logging.getLogger(__name__)
 
 
 @dataclass

@@ -4,7 +4,6 @@ tension, a band or compliance the aero load changes), and what an edge of a sear
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import asdict, dataclass
 
@@ -20,8 +19,6 @@ from warpbridge.model.effects import (
     Effects,
 )
 from warpbridge.model.initial_state import reachable_band
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,6 @@ the readings of the known error's sources."""
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass, field, replace
 
@@ -28,9 +27,6 @@ from warpbridge.model.diagnosis.transfer import Carried, Carry, Transfer
 from warpbridge.model.effect_registry import EFFECT_FIELDS, SEPARATE
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import ModelFile
-
-log = logging.getLogger(__name__)
-
 
 REPORT_FORMAT = "warpbridge-diagnosis/1"
 

@@ -4,7 +4,6 @@ computed once and judged against the model its round starts from."""
 from __future__ import annotations
 
 import copy
-import logging
 import math
 from collections.abc import Callable, Hashable
 from concurrent.futures import as_completed
@@ -21,8 +20,6 @@ from warpbridge.model.diagnosis.stats import (
 )
 from warpbridge.model.effect_registry import EFFECT_FIELDS, LATENCY_FIELDS
 from warpbridge.model.effects import Effects
-
-log = logging.getLogger(__name__)
 
 
 @dataclass

@@ -3,7 +3,6 @@ two, a pair entering together, a backward pass with the same test, a joint refit
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field
 
 from warpbridge.model.diagnosis.options import Decision
@@ -25,8 +24,6 @@ from warpbridge.model.diagnosis.stats import (
     PairedGain,
 )
 from warpbridge.model.effect_registry import BOUND_HINTS, LOAD_COUPLED, LOAD_EFFECT
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable
 
 from warpbridge.model.diagnosis.problem import Fit, Problem
 from warpbridge.model.diagnosis.selection import Path
-
-log = logging.getLogger(__name__)
 
 
 class WholeLogSizes:

@@ -3,7 +3,6 @@ error correction, and the floor (noise and the model's known error) the gap is m
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,8 +19,6 @@ from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
 from warpbridge.model.signals import noise_floor
-
-log = logging.getLogger(__name__)
 
 
 def model_error(fit: FitQuality, noise: float) -> float:

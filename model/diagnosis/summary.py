@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import logging
 import math
-
-log = logging.getLogger(__name__)
 
 
 def _fmt_params(d: dict) -> str:
