@@ -10,6 +10,7 @@ from concurrent.futures import Future
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from warpbridge.model.diagnosis.blocks import make_split
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
@@ -327,3 +328,21 @@ def test_the_longest_jobs_are_handed_out_first_and_the_results_come_back_as_aske
     ex.pool = ImmediatePool()
     assert ex.run(jobs, "stage") == [0, 1, 2, 3, 4]
     assert ex.pool.handed == [1, 4, 0, 3, 2]
+
+
+def test_the_report_judges_rounds_on_its_floor_without_changing_the_explored_ones():
+    """A raised floor is a view of the search (``Explorer.at_floor``), and the report's rounds are copies: the
+    explored rounds, and the explorer the caller holds, are as they were."""
+    ex = explorer(ImitatorProblem(), ("rate_limit", "drift", "sensor_lag"))
+    d = Decision()
+    path = decide(ex, d, max_effects=3)
+    explored = {pre: [(j.confidence, j.share, j.ambiguous_with_best) for j in js] for pre, js in ex.rounds_done.items()}
+    raised = ex.at_floor(4.0 * ex.floor2)
+    assert raised.floor2 == 4.0 * ex.floor2 and ex.floor2 == 0.02 ** 2
+    assert raised.rounds_done is ex.rounds_done and raised.fits is ex.fits  # the search is shared, not redone
+    rounds, _, _ = rounds_along(raised, path, DiagnoseOptions(decision=d))
+    assert {pre: [(j.confidence, j.share, j.ambiguous_with_best) for j in js]
+            for pre, js in ex.rounds_done.items()} == explored
+    first = {j.name: j for j in rounds[0]}
+    for j in ex.rounds_done[()]:  # each share is of the gap above the floor the report judges on
+        assert first[j.name] is not j and first[j.name].share == pytest.approx(raised.share(ex.nominal, j.gain.gain))
