@@ -304,38 +304,24 @@ def revision_tree(rev: str, where: Path) -> Path:
     return where / "pkg"
 
 
-def process_diagnose(field_csv: Path, model: Path, out: Path, tree: Path | None, cache: Path) -> float:
-    """Seconds of one plain ``diagnose`` on one thread in a process of its own, of the code in ``tree``
-    (``revision_tree``; None: this checkout's), after an untimed warm-up on the log's first 10 s."""
+def process_diagnose(field_csv: Path, model: Path, out: Path, cache: Path, overrides: str = "",
+                     tree: Path | None = None) -> float:
+    """Seconds of one plain ``diagnose`` on one thread in a process of its own, after an untimed warm-up on the
+    log's first 10 s (which compiles the kernels into the variant's own numba cache the first time): of the code
+    in ``tree`` (``revision_tree``), or of this checkout with its kernels compiled with the ``overrides`` of
+    ``kernels``' constants ("NAME=value,..."; empty: as shipped)."""
     lines = field_csv.read_text().splitlines(keepends=True)
     t0 = float(lines[1].split(",")[0])
     head = field_csv.with_name(field_csv.stem + "-head.csv")
     head.write_text("".join([lines[0]] + [ln for ln in lines[1:] if float(ln.split(",")[0]) - t0 < 10.0]))
     rest = ["--model", str(model), "--report", str(out)]
     if tree is None:
-        argv = [sys.executable, "-c", _KERNEL_VARIANT_RUN, "", "diagnose", str(head), str(field_csv), *rest]
-        numba = cache / "numba" / "kernels-shipped"
+        argv = [sys.executable, "-c", _KERNEL_VARIANT_RUN, overrides, "diagnose", str(head), str(field_csv), *rest]
+        numba = cache / "numba" / ("kernels-" + (overrides or "shipped"))
     else:
         argv = [sys.executable, "-c", _REVISION_RUN, str(tree), str(head), str(field_csv), *rest]
         numba = tree.parent / "numba"
     proc = subprocess.run(argv, env=dict(os.environ, NUMBA_CACHE_DIR=str(numba)), capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"diagnose failed: {proc.stderr[-2000:]}")
-    return float(proc.stdout.strip().splitlines()[-1])
-
-
-def kernel_variant_diagnose(field_csv: Path, model: Path, out: Path, overrides: str, cache: Path) -> float:
-    """Seconds of one plain ``diagnose`` in a process of its own whose kernels are compiled with the
-    ``overrides`` of ``kernels``' constants ("NAME=value,..."; empty: as shipped), after an untimed warm-up on
-    the log's first 10 s (which compiles them into the variant's own numba cache the first time)."""
-    lines = field_csv.read_text().splitlines(keepends=True)
-    t0 = float(lines[1].split(",")[0])
-    head = field_csv.with_name(field_csv.stem + "-head.csv")
-    head.write_text("".join([lines[0]] + [ln for ln in lines[1:] if float(ln.split(",")[0]) - t0 < 10.0]))
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache / "numba" / ("kernels-" + (overrides or "shipped"))))
-    proc = subprocess.run([sys.executable, "-c", _KERNEL_VARIANT_RUN, overrides, "diagnose", str(head),
-                           str(field_csv), "--model", str(model), "--report", str(out)],
-                          env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"diagnose failed: {proc.stderr[-2000:]}")
     return float(proc.stdout.strip().splitlines()[-1])
@@ -350,10 +336,10 @@ def timed_diagnose(field_csv: Path, model: Path, out: Path, new: bool, compare: 
     """(seconds, report) of one plain ``diagnose``: the shipped variant when ``new``, else the baseline (for
     ``code-before``, the code in ``tree``)."""
     if compare == "code-before":
-        seconds = process_diagnose(field_csv, model, out, None if new else tree, cache)
+        seconds = process_diagnose(field_csv, model, out, cache, tree=None if new else tree)
         return seconds, json.loads(out.read_text())
     if compare in KERNEL_BASELINES:
-        seconds = kernel_variant_diagnose(field_csv, model, out, "" if new else KERNEL_BASELINES[compare], cache)
+        seconds = process_diagnose(field_csv, model, out, cache, "" if new else KERNEL_BASELINES[compare])
         return seconds, json.loads(out.read_text())
     cached = model_error.ErrorModel._input_terms
     shipped = {name: getattr(model_error, name) for name in _TIME_TERMS_BASELINE}

@@ -65,10 +65,13 @@ def test_the_readings_tables_name_registered_effects_and_their_own_parameters():
 
 
 def test_the_boxes_scale_with_the_log():
-    short, long_ = LogScale.of(T[:401], U[:401]), LogScale.of(T, U)
-    assert long_.duration == pytest.approx(10 * short.duration, rel=0.01)
-    assert forms_for("drift", T, U)[0][0].lo == pytest.approx(0.25 * long_.duration)
-    assert spec("rate_limit").forms(long_)[0][0].hi == pytest.approx(1.02 * long_.vmax)
+    # 20 s of a 3 mm sine at 0.5 Hz: its fastest motion is 3 pi mm/s
+    scale = LogScale.of(T, U)
+    assert scale.duration == 20.0 and scale.fs == pytest.approx(200.0)
+    assert scale.vmax == pytest.approx(3 * math.pi, rel=1e-3)
+    assert forms_for("drift", T, U)[0][0].lo == pytest.approx(0.25 * 20.0)
+    assert spec("rate_limit").forms(scale)[0][0].hi == pytest.approx(1.02 * 3 * math.pi, rel=1e-3)
+    assert forms_for("drift", T[:401], U[:401])[0][0].lo == pytest.approx(0.25 * 2.0)  # a tenth of the log
 
 
 def test_an_unknown_effect_is_named_with_the_known_ones():
