@@ -87,9 +87,9 @@ from warpbridge.bridge.commands.diagnose import free_cores  # noqa: E402
 from warpbridge.bridge.commands.logfile import read_log, write_csv_atomic  # noqa: E402
 from warpbridge.model import excitation  # noqa: E402
 
-IDENT_SOURCES = ["model/identify.py", "model/ident_design.py", "model/ident_path.py", "model/ident_space.py",
-                 "model/ident_uncertainty.py", "model/signals.py", "model/kernels.py", "model/boucwen.py",
-                 "model/initial_state.py", "bridge/commands/logfile.py"]
+IDENT_SOURCES = [*sorted(str(p.relative_to(ROOT)) for p in (ROOT / "model" / "identification").glob("*.py")),
+                 "model/signals.py", "model/kernels.py", "model/boucwen.py", "model/initial_state.py",
+                 "bridge/commands/logfile.py"]
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
                                 "sitl/sheath.py", *sorted(str(p.relative_to(ROOT)) for p in
                                                           (ROOT / "model" / "diagnosis").glob("*.py")),

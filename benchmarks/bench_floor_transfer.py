@@ -37,7 +37,7 @@ from plants import FAMILIES, draw_plants, run_log  # noqa: E402
 
 from warpbridge.bridge.commands.modelio import load_model  # noqa: E402
 from warpbridge.model.diagnosis.start import known_error  # noqa: E402
-from warpbridge.model.identify import noise_floor  # noqa: E402
+from warpbridge.model.signals import noise_floor  # noqa: E402
 
 
 def plant_ratios(family: str, seed: int, index: int, cache: Path) -> dict:

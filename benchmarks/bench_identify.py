@@ -41,9 +41,10 @@ from scipy import signal
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
 
-from warpbridge.model import identify as current  # noqa: E402
+from warpbridge.model import identification as current  # noqa: E402
 from warpbridge.model.boucwen import BoucWenParams, forward  # noqa: E402
 from warpbridge.model.initial_state import estimate_z0  # noqa: E402
+from warpbridge.model.signals import reversal_indices  # noqa: E402
 
 FS = 500.0
 DURATION = 60.0
@@ -237,20 +238,24 @@ def truth_self_check(plant: Plant) -> float:
 # ---- the code under test, current and previous ------------------------------------------------
 
 def load_baseline(rev: str) -> object:
-    """model/ at git revision ``rev`` as an importable package of its own (imports rewritten)."""
+    """model/ at git revision ``rev`` (with its subpackages) as an importable package of its own (imports
+    rewritten); its identification: the package ``model/identification/`` or, at older revisions, the module
+    ``model/identify.py``."""
     root = Path(tempfile.mkdtemp(prefix="wb-baseline-"))
     pkg = root / "wb_baseline"
     (pkg / "model").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
-    files = subprocess.run(["git", "-C", str(REPO), "ls-tree", "--name-only", rev, "model/"], check=True,
+    files = subprocess.run(["git", "-C", str(REPO), "ls-tree", "-r", "--name-only", rev, "model/"], check=True,
                            capture_output=True, text=True).stdout.split()
     for f in files:
         if f.endswith(".py"):
             src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:{f}"], check=True, capture_output=True,
                                  text=True).stdout
+            (pkg / f).parent.mkdir(parents=True, exist_ok=True)
             (pkg / f).write_text(src.replace("warpbridge.model", "wb_baseline.model"))
     sys.path.insert(0, str(root))
-    mod = importlib.import_module("wb_baseline.model.identify")
+    name = "identification" if "model/identification/__init__.py" in files else "identify"
+    mod = importlib.import_module(f"wb_baseline.model.{name}")
     mod._bench_root = root
     return mod
 
@@ -310,7 +315,7 @@ def main() -> None:
             seed = args.seed + 10 * pi + fi
             t, u, w, _ = bench_log(plant, fam, seed)
             check = bench_log(plant, CHECK_FAMILY[fam], seed + 1000)
-            rev = current.reversal_indices(u[: int(0.75 * u.size)]).size
+            rev = reversal_indices(u[: int(0.75 * u.size)]).size
             row = [plant.name, fam, rev]
             for key, ident in versions.items():
                 r = run_identify(ident, t, u, w, check, wrong, seed)

@@ -50,7 +50,7 @@ from bench_realdata_identify import load as load_realdata  # noqa: E402
 from stored import keyed, write_json  # noqa: E402
 
 from warpbridge.bridge.commands.logfile import read_log  # noqa: E402
-from warpbridge.model import identify as current  # noqa: E402
+from warpbridge.model import identification as current  # noqa: E402
 from warpbridge.model.boucwen import BoucWenParams, forward  # noqa: E402
 from warpbridge.model.initial_state import estimate_z0  # noqa: E402
 from warpbridge.model.signals import linear_fit, noise_floor  # noqa: E402

@@ -41,7 +41,7 @@ from bench_diagnose_blind import (  # noqa: E402
 )
 from plants import FAMILIES, draw_plants, run_log  # noqa: E402
 
-from warpbridge.model.identify import noise_floor  # noqa: E402
+from warpbridge.model.signals import noise_floor  # noqa: E402
 
 
 def mad_floor(w: np.ndarray) -> float:

@@ -6,7 +6,7 @@
 
 ``results_page.py`` reads such files from ``benchmarks/results/`` and says when their sources have changed
 since (stale). The files listed are every module of ``warpbridge`` and of ``benchmarks/`` that the benchmark's
-process had imported when it finished, as paths in the repository (``model/identify.py``): a change to any
+process had imported when it finished, as paths in the repository (``model/signals.py``): a change to any
 of them may change the figures; a change anywhere else cannot, as far as that process goes (worker
 processes import the same modules for the runs they are given; a command the run started as a subprocess is
 named to ``keyed``, which imports it).

@@ -1,6 +1,6 @@
 """Jitter removed from a signal: between its real turning points, the least-squares monotone fit.
 
-Used by identification's start design (``model.ident_design``). It sits apart from ``model.signals``
+Used by identification's start design (``model.identification.design``). It sits apart from ``model.signals``
 because it needs SciPy, which the flight path (``warpbridge run``) never loads.
 """
 

@@ -16,7 +16,7 @@ which wipes the hysteresis memory, then a low-passed random signal.
 by forward output error with bounded least squares on the first part and
 scores both the new and the old model on the held-out last part; ``accept``
 is the acceptance rule. ``refit_full`` re-identifies the whole model
-(``model.identify``) on the same data, judged by the same rule.
+(``model.identification``) on the same data, judged by the same rule.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from warpbridge.model import excitation as X
 from warpbridge.model.adapt import fold_pretension
 from warpbridge.model.boucwen import BoucWenParams, forward
 from warpbridge.model.effects import servo_follow
-from warpbridge.model.identify import identify
+from warpbridge.model.identification import identify
 from warpbridge.model.signals import noise_floor
 from warpbridge.model.transform import Transform
 

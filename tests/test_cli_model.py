@@ -143,12 +143,12 @@ def test_missing_files_are_reported_not_raised(tmp_path, capsys):
     ["predict", "{log}", "--model", "{model}", "-o", "{tmp}/p.csv", "--plot", "{missing}/p.png"],
 ])
 def test_outputs_that_cannot_be_written_are_refused_before_any_work(argv, workdir, tmp_path, capsys, monkeypatch):
-    import warpbridge.model.identify as ident
+    import warpbridge.bridge.commands.identify as command
 
     def no_fit(*_a, **_k):
         raise AssertionError("the fit started before the output paths were checked")
 
-    monkeypatch.setattr(ident, "identify", no_fit)
+    monkeypatch.setattr(command, "identify", no_fit)
     args = [a.format(log=workdir / "bench.csv", model=workdir / "model.json", missing=tmp_path / "nope",
                      tmp=tmp_path) for a in argv]
     rc = run(*args)
@@ -275,12 +275,12 @@ def short_fit(workdir):
 
 def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(workdir, short_fit, tmp_path, capsys,
                                                                                monkeypatch):
-    import warpbridge.model.identify as ident
+    from warpbridge.model.identification import pipeline
 
     assert "searched again" not in short_fit[0]
     capsys.readouterr()
-    monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every refinement counts as ending at the limit
-    monkeypatch.setattr(ident, "EDGE_AGREE", -1.0)  # and its starts as disagreeing there
+    monkeypatch.setattr(pipeline, "EDGE_FRAC", 1.0)  # every refinement counts as ending at the limit
+    monkeypatch.setattr(pipeline, "EDGE_AGREE", -1.0)  # and its starts as disagreeing there
     assert run("identify", workdir / "bench.csv", "-o", tmp_path / "twice.json", "--maxiter", 10) == 0
     out = capsys.readouterr().out
     assert "the first refinement ended at the upper limit of the exponent n: searched again" in out
@@ -289,14 +289,14 @@ def test_identify_says_when_it_searched_again_from_the_exponents_upper_limit(wor
 
 def test_identify_says_when_it_searched_again_without_a_fold_in_the_backbone(workdir, short_fit, tmp_path, capsys,
                                                                              monkeypatch):
-    import warpbridge.model.identify as ident
+    from warpbridge.model.identification import checks
 
     assert "folded" not in short_fit[0]
     assert "backbone_fold_deg" not in short_fit[1]["fit"]
     capsys.readouterr()
     # a working range so wide that the paper wing's own backbone (its vertex at 17.4 deg) folds in it: without
     # the fold it fits far worse, so the data show the fold and the first model is kept
-    monkeypatch.setattr(ident, "FOLD_MARGIN", 1e3)
+    monkeypatch.setattr(checks, "FOLD_MARGIN", 1e3)
     assert run("identify", workdir / "bench.csv", "-o", tmp_path / "shown.json", "--maxiter", 10) == 0
     out = capsys.readouterr().out
     assert "the first search's backbone folded at" in out and "the data show the fold, the first model kept" in out
@@ -305,7 +305,7 @@ def test_identify_says_when_it_searched_again_without_a_fold_in_the_backbone(wor
     first, unfolded = fit["fold_train_rms_deg"]
     assert lo < fit["backbone_fold_deg"] < hi and fit["fold_search_kept"] is False and unfolded > 1.05 * first
     # kept whatever it costs: the model without the fold, and the message says so
-    monkeypatch.setattr(ident, "FOLD_KEEP", 1e9)
+    monkeypatch.setattr(checks, "FOLD_KEEP", 1e9)
     assert run("identify", workdir / "bench.csv", "-o", tmp_path / "again.json", "--maxiter", 10) == 0
     assert "searched again with the fold kept outside it, and that model was kept" in capsys.readouterr().out
     m = json.loads((tmp_path / "again.json").read_text())

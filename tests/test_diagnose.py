@@ -901,7 +901,7 @@ def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_pl
 
     from warpbridge.model.diagnosis.options import Decision
     from warpbridge.model.diagnosis.readings import stall_as_play
-    from warpbridge.model.identify import central_range
+    from warpbridge.model.signals import central_range
 
     u = np.linspace(2.0, 10.0, 1001)  # the log's travel: 2..10 mm
     stall = Effects(capstan_pull_ratio=0.01, capstan_release_ratio=0.01, capstan_zero_mm=zero)
@@ -1227,7 +1227,7 @@ def test_a_backlash_wider_than_the_first_search_is_searched_again():
     """A dead band of 0.55 of the travel, past the first search's 0.4: the fit ends at that edge, searches again up
     to the whole travel, keeps the wider fit (sized within 5 %, at no edge) and the report says so; a backlash of
     0.2 of the travel is fitted by the first search alone."""
-    from warpbridge.model.identify import central_range
+    from warpbridge.model.signals import central_range
 
     t, u, _, _ = make_log(Effects(), seed=5)
     lo, hi = central_range(u)

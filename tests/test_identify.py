@@ -8,15 +8,9 @@ import pytest
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
 from warpbridge.model.effects import servo_follow
 from warpbridge.model.excitation import filtered_random, multisine_reversals
-from warpbridge.model.identify import (
-    compress_path,
-    fit_stretches,
-    identify,
-    noise_floor,
-    reversal_indices,
-    support_check,
-    turning_points,
-)
+from warpbridge.model.identification import identify, support_check
+from warpbridge.model.identification.path import fit_stretches
+from warpbridge.model.signals import compress_path, noise_floor, reversal_indices, turning_points
 
 P = BoucWenParams.paper()
 FS = 200.0
@@ -76,18 +70,18 @@ def test_same_seed_gives_the_same_model():
 
 
 def test_a_result_at_the_exponents_upper_limit_is_refined_again_from_the_next_starts(monkeypatch):
-    import warpbridge.model.identify as ident
+    from warpbridge.model.identification import checks, pipeline
 
     u = filtered_random(T[:3000], 1.0, 2.5, offset=4.5, seed=4)
     _, w = noisy_log(u, 3)
     kw = dict(maxiter=8, polish_evals=200)
     # the exponent's restart alone: no backbone counts as folding
-    monkeypatch.setattr(ident, "fold_depth", lambda thetas, c, lo, hi: np.zeros(np.atleast_2d(thetas).shape[0]))
-    monkeypatch.setattr(ident, "EDGE_FRAC", -1.0)  # no result counts as at the limit
+    monkeypatch.setattr(checks, "fold_depth", lambda thetas, c, lo, hi: np.zeros(np.atleast_2d(thetas).shape[0]))
+    monkeypatch.setattr(pipeline, "EDGE_FRAC", -1.0)  # no result counts as at the limit
     once = identify(T[:3000], u, w, **kw)
     assert once.trace.restarts == 0 and "searched_again" not in once.fit_dict()
-    monkeypatch.setattr(ident, "EDGE_FRAC", 1.0)  # every result counts as at the limit ...
-    monkeypatch.setattr(ident, "EDGE_AGREE", -1.0)  # ... and its refined starts as disagreeing
+    monkeypatch.setattr(pipeline, "EDGE_FRAC", 1.0)  # every result counts as at the limit ...
+    monkeypatch.setattr(pipeline, "EDGE_AGREE", -1.0)  # ... and its refined starts as disagreeing
     seen = []
     both = identify(T[:3000], u, w, progress=lambda stage, i, n: seen.append((stage, i)), **kw)
     assert both.trace.restarts == 1
@@ -95,7 +89,7 @@ def test_a_result_at_the_exponents_upper_limit_is_refined_again_from_the_next_st
     assert both.train_rms <= once.train_rms  # the better of the two is kept
     assert both.fit_dict()["searched_again"] and both.fit_dict()["second_search_kept"] == both.trace.restart_kept
     # refined starts that agree put n at the limit themselves: no second refinement
-    monkeypatch.setattr(ident, "EDGE_AGREE", 1e9)
+    monkeypatch.setattr(pipeline, "EDGE_AGREE", 1e9)
     agree = identify(T[:3000], u, w, **kw)
     assert agree.trace.restarts == 0
 
@@ -110,7 +104,9 @@ def test_the_answer_does_not_depend_on_the_seed():
 
 
 def test_only_the_exponents_upper_limit_counts_as_its_edge():
-    from warpbridge.model.identify import BOUNDS_ONE_SIDED, EDGE_FRAC, at_exponent_edge
+    from warpbridge.model.identification.pipeline import EDGE_FRAC
+    from warpbridge.model.identification.refine import at_exponent_edge
+    from warpbridge.model.identification.space import BOUNDS_ONE_SIDED
 
     lo = np.array([b[0] for b in BOUNDS_ONE_SIDED])
     hi = np.array([b[1] for b in BOUNDS_ONE_SIDED])
@@ -381,7 +377,7 @@ def test_no_servo_lag_is_kept_where_the_tendon_follows_the_command(fitted):
 
 
 def test_the_working_range_reaches_rest_on_a_one_sided_wing_and_widens_a_two_sided_one():
-    from warpbridge.model.identify import FOLD_MARGIN, working_range
+    from warpbridge.model.identification.checks import FOLD_MARGIN, working_range
 
     w = np.linspace(4.0, 10.0, 1001)  # its 0.5 and 99.5 percentiles: 4.03 and 9.97
     lo, hi = working_range(w, two_sided=False)
@@ -393,7 +389,7 @@ def test_the_working_range_reaches_rest_on_a_one_sided_wing_and_widens_a_two_sid
 
 
 def test_only_a_backbone_folding_inside_the_range_counts_as_folding():
-    from warpbridge.model.identify import fold_depth
+    from warpbridge.model.identification import fold_depth
 
     th = np.zeros((4, 9))
     # alpha1 (w - c)^2 + alpha2 (w - c): the vertex at c - alpha2 / (2 alpha1), c = 1
@@ -406,7 +402,7 @@ def test_only_a_backbone_folding_inside_the_range_counts_as_folding():
 def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_fold():
     """A bench log that covers only the upper part of the travel of a wing whose best fit folds below it: the
     model kept has no fold between rest and half a span beyond the log's warp, and the fit says what happened."""
-    from warpbridge.model.identify import FOLD_KEEP, working_range
+    from warpbridge.model.identification.checks import FOLD_KEEP, working_range
 
     folding = BoucWenParams(a1=0.05, a2=-0.2, a3=1.0, az=P.az, A=P.A, n=P.n, b=P.b)  # vertex at 2 deg
     u = filtered_random(T[:4000], 1.0, 1.6, offset=3.6, seed=4)
@@ -432,7 +428,7 @@ def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_f
 def test_a_fold_the_log_itself_shows_is_kept():
     """A backbone that turns at 16.7 deg and a log that reaches it: without the fold the fit is twice as bad on
     the training part, so the first search's model, fold and all, is kept and the fit says why."""
-    from warpbridge.model.identify import FOLD_KEEP
+    from warpbridge.model.identification.checks import FOLD_KEEP
 
     turning = BoucWenParams(a1=-0.03, a2=1.0, a3=-1.0, az=P.az, A=P.A, n=P.n, b=P.b)  # vertex at 16.7 deg
     u = filtered_random(T[:4000], 1.0, 2.2, offset=6.5, seed=4)
@@ -467,11 +463,11 @@ def test_a_fit_is_never_worse_than_the_straight_line_it_contains():
 def test_a_fit_worse_than_the_line_is_refined_again_from_it(monkeypatch):
     """A failed refinement (made to return its start with a backbone that is no model of this wing) fits the
     training part worse than the line: the result comes from the line's start instead, never worse than it."""
-    import warpbridge.model.identify as ident
+    from warpbridge.model.identification.refine import Refiner
 
     u = filtered_random(T[:3000], 1.0, 2.5, offset=4.5, seed=4)
     _, w = noisy_log(u, 3)
-    real = ident.Refiner.run
+    real = Refiner.run
 
     def failing(self, thetas, labels, n_refine):
         if self.stage == "line":
@@ -480,7 +476,7 @@ def test_a_fit_worse_than_the_line_is_refined_again_from_it(monkeypatch):
         th[6:9] = [0.0, 0.3, 3.0]  # far off the data
         return th, 1.0, labels[0]
 
-    monkeypatch.setattr(ident.Refiner, "run", failing)
+    monkeypatch.setattr(Refiner, "run", failing)
     res = identify(T[:3000], u, w, maxiter=10, polish_evals=200)
     assert res.trace.line_restart
     assert res.train_rms <= res.linear_train_rms
@@ -543,13 +539,13 @@ def test_starts_that_disagree_escalate_to_a_global_search_and_the_lowest_trainin
 
 
 def test_the_global_search_is_deterministic_for_a_seed():
-    from warpbridge.model.ident_global import global_search
-    from warpbridge.model.ident_path import FitPath, Objective
+    from warpbridge.model.identification.global_search import global_search
+    from warpbridge.model.identification.path import FitPath, Objective
 
     t, u, w = _wide_two_sided_log()
     uh, wh = (u - u.mean()) / np.ptp(u), w / np.ptp(w)
     obj = Objective(FitPath.build(uh, wh, u.size, 600, 30), 0.0)
-    from warpbridge.model.ident_space import BOUNDS_TWO_SIDED
+    from warpbridge.model.identification.space import BOUNDS_TWO_SIDED
     lo, hi = np.array([b[0] for b in BOUNDS_TWO_SIDED]), np.array([b[1] for b in BOUNDS_TWO_SIDED])
     seeded = 0.5 * (lo + hi)[None, :]
     a = global_search(obj, lo, hi, seeded, 3, popsize=20, maxiter=5)

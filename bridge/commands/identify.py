@@ -1,6 +1,6 @@
 """``warpbridge identify LOG.csv -o MODEL.json``: the nominal Bouc-Wen model from a log.
 
-The steps of ``model.identify``: a deterministic start design whose backbone and
+The steps of ``model.identification``: a deterministic start design whose backbone and
 state coefficients are solved exactly per trial shape, then Levenberg-Marquardt
 on the forward output error, the last part of the log held out, the initial
 hysteretic state estimated from the first samples, and with ``--max-delay`` a
@@ -34,7 +34,7 @@ from warpbridge.bridge.errors import UserError
 from warpbridge.model.diagnosis.check import input_check
 from warpbridge.model.diagnosis.start import bench_known_error
 from warpbridge.model.effects import Effects
-from warpbridge.model.identify import DELAY_GRID_S, LAG_GRID_S, identify
+from warpbridge.model.identification import DELAY_GRID_S, LAG_GRID_S, identify
 from warpbridge.model.model_error import ErrorModel, bench_error_model
 from warpbridge.model.modelfile import FitQuality, ModelFile
 

@@ -3,7 +3,7 @@
 On a log with a very wide two-sided loop the design's few refined starts can all
 settle in different local minima, none of them in the basin of the best fit.
 Then a differential evolution (``scipy.optimize.differential_evolution``) runs
-over the same forward output error the refinement uses (``ident_path.Objective``
+over the same forward output error the refinement uses (``path.Objective``
 on the search's path), with a fixed seed derived from the design's, a modest
 budget, and the design's best starts and the refined results placed in its first
 population (the rest of it a Latin hypercube over the box). Its best distinct
@@ -20,7 +20,7 @@ import numpy as np
 from scipy.optimize import differential_evolution
 from scipy.stats import qmc
 
-from warpbridge.model.ident_path import FOLD_PENALTY, Objective
+from warpbridge.model.identification.path import FOLD_PENALTY, Objective
 
 GLOBAL_SEED = 7919  # added to the design's scramble: the search's own fixed seed
 POPSIZE = 60  # members of the population (at least the seeded starts plus a Latin hypercube)

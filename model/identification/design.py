@@ -14,8 +14,10 @@ with a fixed seed, the paper's shape and the prior's; the straight line and the
 quadratic without hysteresis (az = 0) are inside every solve. The best few
 distinct shapes are refined on the same input-side error (the linear
 coefficients solved again at every step), and handed on, in the search's
-parameter vector (``model.ident_space``), to the refinement on the forward warp
-error.
+parameter vector (``space``), to the refinement on the forward warp
+error. Steps 3 (``start_design``) and 4 (``linear_solve``) of ``identify``
+run it on a log's ``LogData``; the straight line and the quadratic backbone are
+appended to the starts it hands on.
 
 The warp path the state is integrated over is the measured warp with its
 jitter removed: every reversal smaller than a few noise deviations would
@@ -36,9 +38,11 @@ from scipy.stats import qmc
 
 from warpbridge.model import kernels as K
 from warpbridge.model._jit import njit, prange
-from warpbridge.model.ident_space import thetas_to_rows
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.identification.data import LogData
+from warpbridge.model.identification.space import normalised_to_theta, thetas_to_rows
 from warpbridge.model.monotone import monotone_between_turns
-from warpbridge.model.signals import noise_floor, reversal_indices, turning_indices
+from warpbridge.model.signals import linear_fit, noise_floor, reversal_indices, turning_indices
 
 DESIGN_SEED = 20170101  # the Sobol' scramble of the default design (fixed: the answer does not depend on luck)
 DESIGN_LOG2 = 9  # 2^9 trial shapes
@@ -54,6 +58,8 @@ SHAPE_BOUNDS_ONE_SIDED = [(1.0, 5.0), (-2.0, 0.5), (-1.0, 1.0), (-7.0, 0.85), (-
 SHAPE_BOUNDS_TWO_SIDED = SHAPE_BOUNDS_ONE_SIDED + [(-4.0, 4.0), (-4.0, 4.0)]
 DISTINCT = 0.08  # starts closer than this (share of the design box, RMS over coordinates) are one start
 SHAPE_ITER = 40  # most input-side refinement steps of a start
+LOOP_FLOOR = 1e-3  # az (normalised) of a start without hysteresis: a loop too narrow to matter
+LINE_ZSAT = -3.5  # log10 of the state's saturation (normalised) of the straight-line and quadratic starts
 
 
 @dataclass
@@ -328,3 +334,73 @@ def refine_shape(problem: InputSide, s0: np.ndarray, lo: np.ndarray, hi: np.ndar
     except (ValueError, np.linalg.LinAlgError):
         return s0
     return np.clip(res.x, lo, hi)
+
+
+# ---- steps 3-4: start design and linear solve --------------------------------------------------
+
+@dataclass
+class Starts:
+    """Search vectors to refine, best first by input-side cost, with the straight line and the quadratic
+    backbone (no hysteresis) appended; ``evaluations`` of the linear solve."""
+
+    thetas: np.ndarray
+    input_rms: np.ndarray
+    labels: list[str]
+    evaluations: int
+
+
+def start_design(data: LogData, seed: int, prior: BoucWenParams | None) -> tuple[np.ndarray, list[str]]:
+    """Step 3: the trial shapes (A = 1 scale): the Sobol' design (scramble ``DESIGN_SEED + seed``), the
+    paper's shape and the prior's."""
+    S = sobol_design(data.two_sided, seed=DESIGN_SEED + seed)
+    labels = ["design"] * S.shape[0]
+    lo, hi = shape_bounds(data.two_sided)
+    for name, p in (("paper", BoucWenParams.paper()), ("prior", prior)):
+        if p is None:
+            continue
+        th = normalised_to_theta(data.norm.to_normalised(p), data.two_sided, data.norm.c)
+        if th is not None:
+            S = np.vstack([S, np.clip(theta_to_shape(th), lo, hi)])
+            labels.append(name)
+    return S, labels
+
+
+def linear_solve(data: LogData, S: np.ndarray, labels: list[str], keep: int) -> Starts:
+    """Step 4: (a1, a2, a3, az) solved exactly for every trial shape on the input-side error; the ``keep``
+    distinct best as search vectors, then the straight line and the quadratic backbone."""
+    lo, hi = shape_bounds(data.two_sided)
+    thetas, rms, names, evaluations = [], [], [], 0
+    for turns_from in ("input", "warp"):  # runs cut at the input's turns, and at the warp's: half the starts each
+        wp = WarpPath.build(data.x_hat, data.w_hat, data.n_train_end, data.noise / data.norm.ws, turns_from)
+        problem = InputSide(wp, data.norm.c)
+        sol = problem.solve(S)
+        evaluations += problem.evaluations
+        best = distinct_best(S, sol.cost, max(1, (keep + 1) // 2), lo, hi)
+        sub = LinearSolve(sol.cost[best], sol.alpha[best], sol.az[best], sol.ok[best])
+        thetas.append(shapes_to_thetas(S[best], sub, LOOP_FLOOR))
+        rms.append(np.sqrt(sol.cost[best]))
+        names += [labels[i] for i in best]
+        if turns_from == "input":
+            quad = np.linalg.lstsq(problem.R, problem.Q.T @ problem.ub, rcond=None)[0]
+    extra = [simple_theta(data, quad), simple_theta(data, line_alpha(data))]
+    blo, bhi = data.bounds
+    all_thetas = np.clip(np.vstack([*thetas, *extra]), blo, bhi)
+    return Starts(all_thetas, np.concatenate([*rms, [np.nan, np.nan]]), names + ["quadratic", "line"], evaluations)
+
+
+def line_alpha(data: LogData) -> np.ndarray:
+    """Backbone (alpha1, alpha2, alpha3 around c, normalised) of the best straight line w = c0 + c1 u fitted
+    on the training samples, written as u of w."""
+    c0, c1 = linear_fit(data.x_hat, data.w_hat, data.train_mask)
+    a2 = 1.0 / c1 if c1 != 0 else 1.0
+    return np.array([0.0, a2, (data.norm.c - c0) * a2])
+
+
+def simple_theta(data: LogData, alpha: np.ndarray) -> np.ndarray:
+    """A search vector with backbone ``alpha`` and a state saturating at 10^LINE_ZSAT (no hysteresis)."""
+    th = np.zeros(11 if data.two_sided else 9)
+    th[0] = 2.0
+    th[1] = 0.0
+    th[2] = th[3] = LINE_ZSAT
+    th[6:9] = alpha
+    return th

@@ -14,18 +14,29 @@ theta to the model in mm and deg (az = 1 fixes the scale, so az has none).
 
 A parameter counts as determined when its 95 % interval is narrower than its
 own size (half-width below |value|), and, for the search coordinates, than a
-tenth of the search box; otherwise the result names it.
+tenth of the search box; otherwise the result names it. Step 10 of ``identify``
+(``uncertainty``) computes them at the optimum.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from warpbridge.model.boucwen import BoucWenParams
+from warpbridge.model.effects import delayed
+from warpbridge.model.identification.data import LogData
+from warpbridge.model.identification.excitation import Excitation
+from warpbridge.model.identification.path import POLISH_REVERSALS, FitPath, Objective, jacobian
+from warpbridge.model.identification.refine import Candidate
+from warpbridge.model.identification.space import THETA_NAMES, thetas_to_rows
 from warpbridge.model.signals import effective_samples
+
+log = logging.getLogger(__name__)
 
 Z95 = 1.959963984540054
 RCOND = 1e-6  # singular values of J below this share of the largest are directions the data do not constrain
@@ -54,7 +65,7 @@ class Interval:
 @dataclass
 class Uncertainty:
     """Intervals of the physical parameters (``params``, keyed a1..b6) and of the search coordinates
-    (``search``, keyed by ``ident_space.THETA_NAMES``), the residual standard deviation (deg), the kept
+    (``search``, keyed by ``space.THETA_NAMES``), the residual standard deviation (deg), the kept
     samples and their effective count, and the names the data do not determine."""
 
     params: dict[str, Interval]
@@ -146,3 +157,34 @@ def intervals(theta: np.ndarray, names: tuple[str, ...], J: np.ndarray, r: np.nd
     undetermined += [k for k, v in search.items() if not v.determined and k not in undetermined]  # n: in both
     sd = math.sqrt(float(r @ r) / max(m, 1)) * ws
     return Uncertainty(params, search, sd, int(m), float(n_eff), undetermined, fixed)
+
+
+# ---- step 10: uncertainty ----------------------------------------------------------------------
+
+def uncertainty(data: LogData, best: Candidate, exc: Excitation) -> Uncertainty | None:
+    """Step 10: 95 % intervals of every parameter at the optimum (``intervals``), on the
+    polish's path of the model's own input (its delay applied)."""
+    x = delayed(data.t, data.x_hat, best.delay) if best.delay > 0 else data.x_hat
+    obj = Objective(FitPath.build(x, data.w_hat, data.n_train_end, 2500, POLISH_REVERSALS), data.norm.c)
+    lo, hi = data.bounds
+    try:
+        J, r = jacobian(obj, best.theta, lo, hi)
+    except (ValueError, FloatingPointError):
+        return None
+    norm = data.norm
+
+    def to_physical(theta: np.ndarray) -> np.ndarray:
+        return norm.to_physical(BoucWenParams.from_array(thetas_to_rows(theta, norm.c)[0])).to_array()
+
+    names = THETA_NAMES[:best.theta.size]
+    fixed = {"az": "the model's scale is fixed by az = 1 (z in mm of tendon)"}
+    if not data.two_sided:
+        fixed_b = "with warp of one sign only four combinations of b1..b6 act; the two others (asinh_D, asinh_E) are 0"
+        fixed["b"] = fixed_b
+    try:
+        out = intervals(best.theta, names, J, r, norm.ws, lo, hi, to_physical, fixed)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    for note in exc.notes:
+        log.info("excitation: %s", note)
+    return out

@@ -25,7 +25,7 @@ from scipy.optimize import minimize
 
 from warpbridge.model import kernels as K
 from warpbridge.model._jit import njit, prange
-from warpbridge.model.ident_space import fold_depth, thetas_to_rows
+from warpbridge.model.identification.space import fold_depth, thetas_to_rows
 from warpbridge.model.initial_state import algebraic_z0_rows
 from warpbridge.model.signals import compress_path, noise_floor, reversal_indices, turning_indices
 

@@ -1,0 +1,114 @@
+"""Step 4's servo: the servo's position loop smooths what the command does faster than it (a closed loop's
+feed-forward jumps at each setpoint step) and crosses a large jump at its rated speed; the model fed the raw
+command reverses where the tendon never went. ``lag_scan`` solves the design's best shapes again with the
+input through first-order lags, then under speed caps; ``lag_checks`` tries a servo that lowers the
+input-side cost less surely by a short refinement, and ``lag_pays`` decides, once the model through it is
+final, whether it earns its parameters. The servo itself is ``data.Servo``."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from warpbridge.model.identification.data import LogData, Servo
+from warpbridge.model.identification.delay import DELAY_GAIN, DELAY_SCAN_ITER, parabola_vertex
+from warpbridge.model.identification.design import InputSide, WarpPath, distinct_best, shape_bounds
+from warpbridge.model.identification.path import FIT_TOL_Z, SEARCH_POINTS, SEARCH_REVERSALS, FitPath, Objective, refine
+from warpbridge.model.signals import effective_samples
+
+log = logging.getLogger(__name__)
+
+LAG_GRID_S = (0.005, 0.01, 0.02, 0.03, 0.05, 0.08)  # servo lags the scan tries (s)
+LAG_GAIN = 0.1  # a lag is proposed when it lowers the design's best input-side cost by this share of the no-lag's
+# ... and searched at once when by this share: a closed loop's jumps through the servo leave 0.17-0.39 of the
+# cost on the SITL's logs; a smaller gain (0.6-0.8 left on bench logs, a sine's with no lag at all 0.69) is
+# first checked by a short refinement of the model without it, with and without the lag (``lag_checks``)
+LAG_GAIN_SURE = 0.5
+LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves at each lag
+# speed caps the scan tries, per the fastest the lagged command asks for: a servo crosses a large jump of the
+# command at its rated speed (a hobby servo's 0.1 s per 60 deg on a 10 mm horn is about 100 mm/s of tendon)
+RATE_FRACTIONS = (0.7, 0.5, 0.35, 0.25, 0.18, 0.12)
+
+
+def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, float]:
+    """Step 4's servo: the position loop in front of the model (a first-order lag, capped at a rated speed)
+    under which the design's best shapes explain the input best. The servo smooths what the command does
+    faster than it (a closed loop's feed-forward jumps at every step of the setpoint) and a large jump it
+    crosses at its rated speed: the model fed the raw command reverses where the tendon never went, and every
+    loop after it is wrong. The input-side cost of the ``LAG_SHAPES`` best distinct shapes at no lag is solved
+    again at each lag of ``LAG_GRID_S`` (up to ``max_lag_s`` and a twentieth of the training part), then at the
+    best lag under speed caps of ``RATE_FRACTIONS`` of the fastest the lagged command asks for; a cap that
+    lowers the cost by ``LAG_GAIN`` is kept and the lags are scanned again under it. A parabola through the
+    best lag and its neighbours places it between grid points (the cap likewise, in its logarithm). Returns
+    (servo, cost with it / cost without); no servo unless it lowers the cost by ``LAG_GAIN``; the forward
+    error decides later."""
+    t, n_end = data.t, data.n_train_end
+    dur = float(t[n_end - 1] - t[0]) if n_end > 1 else 0.0
+    grid = [d for d in LAG_GRID_S if d <= max_lag_s and d <= 0.05 * dur]
+    if not grid:
+        return Servo(), 1.0
+    lo, hi = shape_bounds(data.two_sided)
+
+    def cost_at(servo: Servo, shapes: np.ndarray) -> np.ndarray:
+        d = data.with_servo(servo)
+        wp = WarpPath.build(d.x_hat, d.w_hat, n_end, d.noise / d.norm.ws, "input")
+        return InputSide(wp, d.norm.c).solve(shapes).cost
+
+    c0 = cost_at(Servo(), S)
+    keep = distinct_best(S, c0, LAG_SHAPES, lo, hi)
+    if keep.size == 0:
+        return Servo(), 1.0
+    shapes = S[keep]
+    none = float(np.min(c0[keep]))
+
+    def lags_at(rate: float) -> dict[float, float]:
+        tried = {0.0: none} if math.isinf(rate) else {}
+        for lag in grid if math.isinf(rate) else [0.0, *grid]:
+            c = cost_at(Servo(lag, rate), shapes)
+            tried[lag] = float(np.min(c)) if np.isfinite(c).any() else math.inf
+        return tried
+
+    rate, tried = math.inf, lags_at(math.inf)
+    lag = min(tried, key=lambda k: tried[k])
+    fastest = float(np.max(np.abs(np.diff(Servo(lag).apply(t[:n_end], data.u[:n_end]))) / np.diff(t[:n_end])))
+    if fastest > 0:
+        by_rate = {math.log(f * fastest): float(np.min(cost_at(Servo(lag, f * fastest), shapes)))
+                   for f in RATE_FRACTIONS}
+        best_log = min(by_rate, key=lambda k: by_rate[k])
+        if by_rate[best_log] <= (1.0 - LAG_GAIN) * tried[lag]:
+            by_rate[math.log(fastest)] = tried[lag]  # the cap the command never reaches: none
+            rate = math.exp(parabola_vertex(by_rate, best_log))
+            tried = lags_at(rate)
+            lag = min(tried, key=lambda k: tried[k])
+    servo = Servo(parabola_vertex(tried, lag), rate)
+    ratio = tried[lag] / none if none > 0 else 1.0
+    if not servo.active or not ratio <= 1.0 - LAG_GAIN:
+        return Servo(), 1.0
+    log.info("servo %s: the design's best input-side cost %.3g at no lag, %.3g at the scan's best", servo, none,
+             tried[lag])
+    return servo, ratio
+
+
+def lag_checks(data: LogData, theta: np.ndarray, servo: Servo) -> bool:
+    """Does a short refinement (``DELAY_SCAN_ITER`` steps on the search's path) from the model without the servo
+    fit the training part better by ``DELAY_GAIN`` through it than without it?"""
+    lo, hi = data.bounds
+    costs = []
+    for x in (data.x_hat, data.with_servo(servo).x_hat):
+        obj = Objective(FitPath.build(x, data.w_hat, data.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS), data.norm.c)
+        costs.append(refine(obj, theta, lo, hi, DELAY_SCAN_ITER, tol=FIT_TOL_Z).cost)
+    log.info("servo %s, a short refinement: cost %.4g without it, %.4g with it", servo, *costs)
+    return bool(costs[1] <= (1.0 - DELAY_GAIN) * costs[0])
+
+
+def lag_pays(rms_without: float, rms_with: float, residuals: np.ndarray, parameters: int = 1) -> bool:
+    """Does the servo earn its ``parameters``? The training cost must fall by ``DELAY_GAIN`` and by more than
+    the Bayesian information criterion asks of them on the residuals' effective sample count
+    (n_eff ln(c0 / c1) > k ln n_eff): a short log with few independent samples needs a clear gain."""
+    c0, c1 = rms_without ** 2, rms_with ** 2
+    if not (c1 > 0 and c1 <= (1.0 - DELAY_GAIN) * c0):
+        return c1 == 0.0 < c0
+    n_eff = max(effective_samples(residuals), 2.0)
+    return bool(n_eff * math.log(c0 / c1) > max(parameters, 1) * math.log(n_eff))
