@@ -23,7 +23,7 @@ from warpbridge.model.diagnosis import problem as diag_fit
 from warpbridge.model.diagnosis import transfer as diag_transfer
 from warpbridge.model.diagnosis.blocks import make_split
 from warpbridge.model.diagnosis.options import DECISION_GRID, DiagnoseOptions
-from warpbridge.model.diagnosis.problem import Problem
+from warpbridge.model.diagnosis.problem import BoundHit, Problem
 from warpbridge.model.diagnosis.readings import tension_band, viscous_lag
 from warpbridge.model.diagnosis.search import shared_latency_start
 from warpbridge.model.diagnosis.stats import paired_gain
@@ -920,7 +920,7 @@ def test_only_a_stall_that_less_than_doubles_across_the_travel_is_taken_for_a_pl
 
 def _judged(name, mse, hits=(), penalised=0.0):
     from types import SimpleNamespace
-    hits = [{"effect": e, "parameter": f, "bound": b} for e, f, b in hits]
+    hits = [BoundHit(e, f, b, 0.0, 0.0) for e, f, b in hits]
     return SimpleNamespace(name=name, penalised=penalised,
                            fit=SimpleNamespace(score_mse=mse, bound_hits=lambda: hits))
 

@@ -71,7 +71,7 @@ from warpbridge.model.diagnosis.blocks import Split
 from warpbridge.model.diagnosis.left import left_over
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
 from warpbridge.model.diagnosis.readings import (
-    bound_meaning,
+    read_bounds,
 )
 from warpbridge.model.diagnosis.report import (
     Alternative,
@@ -97,7 +97,7 @@ from warpbridge.model.diagnosis.stats import (
     prewhiten,
 )
 from warpbridge.model.diagnosis.transfer import Carried, Carry, carry_check, decide_carried
-from warpbridge.model.diagnosis.where import Cells, cells, gap_closed, split
+from warpbridge.model.diagnosis.where import Cells, ResidualSplit, cells, gap_closed, split
 from warpbridge.model.effects import (
     Effects,
     slack_side_name,
@@ -131,7 +131,7 @@ class Gap:
     cells: Cells
     residual: np.ndarray = field(repr=False)  # measured less the nominal's prediction, deg
     analysed: np.ndarray = field(repr=False)  # the training and scored samples
-    where: dict
+    where: ResidualSplit
     whiteness: TestResult
     input_independence: TestResult
 
@@ -232,12 +232,11 @@ def diagnose(t, u, w, airspeed, model: ModelFile, options: DiagnoseOptions | Non
     mse0, mse1 = prob.mse(nominal.w_pred, sp.score), prob.mse(w_aug, sp.score)
     shrinkage = Shrinkage(math.sqrt(mse0), math.sqrt(mse1), gap_closed(mse0, mse1, noise ** 2),
                           gap_closed(mse0, mse1, floor2),
-                          {k: v for k, v in shrink.items() if k not in ("scores", "dominant", "dominant_cell")})
+                          shrink.cells_only())
     whole = decided.sized.of(path)  # the verdict's effects sized on every analysed sample; ``cur``: held-out
-    hits = whole.bound_hits() if selected else []
+    hits = read_bounds(whole.bound_hits()) if selected else []
     for h in hits:
-        h["meaning"] = bound_meaning(h)
-        chosen_conf[h["effect"]] = chosen_conf.get(h["effect"], 0.0) * opt.bound_confidence
+        chosen_conf[h.effect] = chosen_conf.get(h.effect, 0.0) * opt.bound_confidence
     cand = candidate_table(ex.names, su.skipped, rounds, path, chosen_conf, cur, nominal, hits)
     left = left_over(t, u, r1, sp, floor2, opt.decision.min_gain, airspeed)  # stage 5
     residual_is_noise = gap.whiteness.passed and gap.input_independence.passed

@@ -62,6 +62,7 @@ from scipy.optimize import minimize, minimize_scalar
 from warpbridge.model.boucwen import BoucWenParams, forward, rest_warp
 from warpbridge.model.diagnosis.blocks import Split, make_split
 from warpbridge.model.diagnosis.kernels import fill_along_travel, forward_run_capped, travel_grid
+from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.effect_registry import CORE_FIELDS, EFFECT_FIELDS, LOAD_EFFECT, Box, forms_for
 from warpbridge.model.effects import (
     PULLED,
@@ -102,7 +103,7 @@ def form_supported(f: Fit) -> bool:
     """False for a capstan stall whose slack travel sits at the lower edge of its search. Such a stall hardly
     grows with the tension across the log: a dead band of fixed width, which is backlash's form, not friction's,
     and the held-out test cannot tell the two apart."""
-    return not any((h["parameter"], h["bound"]) == ("capstan_zero_mm", "lower") for h in f.bound_hits())
+    return not any((h.parameter, h.bound) == ("capstan_zero_mm", "lower") for h in f.bound_hits())
 
 
 def effect_of(field_name: str) -> str:
@@ -137,6 +138,22 @@ def linear_fields(name: str) -> tuple[str, ...]:
 
 # ---- the problem -------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class BoundHit(Record):
+    """A nonlinear parameter fitted at an edge of its search box: the effect, the parameter, which edge
+    ("lower" or "upper"), the edge's value and the fitted one; ``meaning`` is what the report reads into it
+    (``readings.bound_meaning``), once read."""
+
+    OPTIONAL = ("meaning",)
+
+    effect: str
+    parameter: str
+    bound: str
+    limit: float
+    value: float | None
+    meaning: str | None = None
+
+
 @dataclass
 class Fit:
     """Fitted augmentation: the full effects (nominal's plus fitted), its prediction and errors."""
@@ -153,7 +170,7 @@ class Fit:
     params_of: dict[str, int] = field(default_factory=dict)  # parameters each named effect's fitted form has
     widened: tuple[str, ...] = ()  # fields searched again past their first limit (``Problem._search_wider``)
 
-    def bound_hits(self, tol: float = BOUND_TOL) -> list[dict]:
+    def bound_hits(self, tol: float = BOUND_TOL) -> list[BoundHit]:
         """Nonlinear parameters fitted at an edge of their search box (within ``tol`` of its width). An edge
         that means "no effect" (no limit, no stall, no second sensor stage) is a value, not a bound."""
         out = []
@@ -164,8 +181,8 @@ class Fit:
             for edge, hit, limit in (("lower", s <= tol and not b.neutral_at_lo, b.lo),
                                      ("upper", s >= 1.0 - tol and not b.neutral_at_hi, b.hi)):
                 if hit:
-                    out.append({"effect": effect_of(b.field), "parameter": b.field, "bound": edge, "limit": limit,
-                                "value": _jsonable(getattr(self.effects, b.field))})
+                    out.append(BoundHit(effect_of(b.field), b.field, edge, limit,
+                                        _jsonable(getattr(self.effects, b.field))))
         return out
 
 

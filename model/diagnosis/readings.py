@@ -5,12 +5,12 @@ tension, a band or compliance the aero load changes), and what an edge of a sear
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
-from warpbridge.model.diagnosis.problem import Fit, effect_of
+from warpbridge.model.diagnosis.problem import BoundHit, Fit, effect_of
 from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.diagnosis.search import Explorer, Judged
 from warpbridge.model.effect_registry import BAND_EFFECTS, BOUND_HINTS, LOAD_EFFECT, TENSION_CHANGES
@@ -30,7 +30,7 @@ class StallAsPlay:
 
 
 @dataclass(frozen=True)
-class ViscousLag:
+class ViscousLag(Record):
     """``viscous_lag``'s reading: a shorter delay kept in the model as the weaker friction's drag."""
 
     friction_scale: float
@@ -38,12 +38,9 @@ class ViscousLag:
     delay_s: float
     reason: str
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
 
 @dataclass(frozen=True)
-class TensionBand:
+class TensionBand(Record):
     """``tension_band``'s reading: a friction change kept in the model as the pre-tension's, its band and
     compliance factors and the tendon's share of the travel they imply."""
 
@@ -51,9 +48,6 @@ class TensionBand:
     compliance_factor: float
     stretch_share: float
     reason: str
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def stall_as_play(ex: Explorer, d: Decision, best: Judged, acc: list[Judged]) -> StallAsPlay | None:
@@ -304,8 +298,13 @@ def widened_notes(fit: Fit, selected: tuple[str, ...] | list[str]) -> list[str]:
     return out
 
 
-def bound_meaning(h: dict) -> str:
-    hint = BOUND_HINTS.get((h["parameter"], h["bound"]),
+def bound_meaning(h: BoundHit) -> str:
+    hint = BOUND_HINTS.get((h.parameter, h.bound),
                            "the effect is larger than the model allows, or another effect is at work")
-    return (f"{h['effect']}: {h['parameter']} sits at the {h['bound']} bound of its search ({h['limit']:.4g}): "
+    return (f"{h.effect}: {h.parameter} sits at the {h.bound} bound of its search ({h.limit:.4g}): "
             f"{hint}; confidence halved")
+
+
+def read_bounds(hits: list[BoundHit]) -> list[BoundHit]:
+    """The hits with what each edge means."""
+    return [replace(h, meaning=bound_meaning(h)) for h in hits]

@@ -9,10 +9,10 @@ from dataclasses import dataclass, field, replace
 from warpbridge.model.diagnosis.check import known_error_on_check
 from warpbridge.model.diagnosis.left import LeftOver, left_over_note
 from warpbridge.model.diagnosis.options import Decision, DiagnoseOptions
-from warpbridge.model.diagnosis.problem import Fit
+from warpbridge.model.diagnosis.problem import BoundHit, Fit
 from warpbridge.model.diagnosis.readings import (
     airspeed_note,
-    bound_meaning,
+    read_bounds,
     tension_band_notes,
     whole_loop_notes,
     widened_notes,
@@ -24,6 +24,7 @@ from warpbridge.model.diagnosis.start import bench_known_error
 from warpbridge.model.diagnosis.stats import TestResult
 from warpbridge.model.diagnosis.summary import summary_lines
 from warpbridge.model.diagnosis.transfer import Carried, Carry, Transfer
+from warpbridge.model.diagnosis.where import ResidualSplit
 from warpbridge.model.effect_registry import EFFECT_FIELDS, SEPARATE
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.modelfile import ModelFile
@@ -103,7 +104,7 @@ class CandidateAlone(Record):
     heldout_gain_ms: float
     p_value: float
     share_of_gap: float
-    at_bound: list[dict]
+    at_bound: list[BoundHit]
 
 
 @dataclass(frozen=True)
@@ -144,7 +145,7 @@ class Candidate(Record):
     reason: str | None = None
     alone: CandidateAlone | None = None
     rounds: list[CandidateRound] = field(default_factory=list)
-    at_bound: list[dict] = field(default_factory=list)
+    at_bound: list[BoundHit] = field(default_factory=list)
     fitted: dict | None = None
     confidence: float = 0.0
     chosen: CandidateChosen | None = None
@@ -196,7 +197,7 @@ class Shrinkage(Record):
     heldout_rms_after_deg: float
     gap_closed: float | None
     gap_closed_beyond_model_error: float | None
-    where: dict
+    where: ResidualSplit
 
 
 SPLIT_SCHEME = ("10 blocks, 4 scored (2, 5, 7, 10 unless the two where the command moves fastest would then be on "
@@ -244,9 +245,9 @@ class Report(Record):
     model_error_model: ErrorModelSummary
     residual_is_noise: bool
     tests: Tests
-    where: dict
+    where: ResidualSplit
     candidates: list[Candidate]
-    bound_hits: list[dict]
+    bound_hits: list[BoundHit]
     ambiguities: list[Ambiguity]
     dropped: list[Dropped]
     kept_unnamed: dict
@@ -331,7 +332,7 @@ def _ambiguity(best: Judged, alts: list[Judged], rnd: int) -> Ambiguity:
 
 
 def candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, chosen_conf: dict[str, float],
-                    final: Fit, nominal: Fit, hits: list[dict]) -> list[Candidate]:
+                    final: Fit, nominal: Fit, hits: list[BoundHit]) -> list[Candidate]:
     """Every candidate of the vocabulary: the skipped ones with why, the tried ones alone (round 1), in each
     round of the chosen path, and, when named, the round it was chosen in."""
     out = []
@@ -345,9 +346,7 @@ def candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, chos
         j1 = first.get(n)
         alone = None
         if j1 is not None:
-            alone_hits = j1.fit.bound_hits()
-            for h in alone_hits:
-                h["meaning"] = bound_meaning(h)
+            alone_hits = read_bounds(j1.fit.bound_hits())
             alone = CandidateAlone(j1.fit.values([n])[n], math.sqrt(nominal.score_mse), math.sqrt(j1.fit.score_mse),
                                    j1.gain.gain, j1.gain.p_value, j1.share, alone_hits)
         per_round = [CandidateRound(k + 1, [x for x in j.fit.names if x != n], j.fit.values(),
@@ -355,7 +354,7 @@ def candidate_table(names, skipped, rounds: list[list[Judged]], path: Path, chos
                      for k, judged in enumerate(rounds) for j in judged if j.name == n]
         chosen = None
         if named:
-            at_bound = [h for h in hits if h["effect"] == n]
+            at_bound = [h for h in hits if h.effect == n]
             fitted, confidence = final.values([n])[n], chosen_conf.get(n, 0.0)
             rnd = path.chosen_round.get(n)
             this = [r for r in per_round if r.round == rnd]
@@ -397,7 +396,7 @@ def check_note(model: ModelFile, noise: float, use_model_error: bool) -> CheckNo
 
 
 def report_notes(path: Path, carry: Carry | None, carried: Carried | None, e_m: float, e_known: float,
-                 hits: list[dict], fit: Fit, left: LeftOver | None, residual_is_noise: bool) -> list[str]:
+                 hits: list[BoundHit], fit: Fit, left: LeftOver | None, residual_is_noise: bool) -> list[str]:
     """The report's notes, in order: the selection's own, the floor transfer's, the search edges', the
     widened searches', the tension and load readings', what is left over, and a residual no effect explains."""
     selected = list(path.named)
@@ -414,7 +413,7 @@ def report_notes(path: Path, carry: Carry | None, carried: Carried | None, e_m: 
             notes.append("the raise did not settle: the verdict asks for a different raise than the one it was "
                          "decided at, and the lower raise gives another verdict; the verdict of the higher one is "
                          "kept (the stricter floor)")
-    notes += [h["meaning"] for h in hits]
+    notes += [h.meaning for h in hits]
     notes += widened_notes(fit, selected)
     notes += tension_band_notes(selected, airspeed_checked=bool(path.kept_by_airspeed))
     if "friction" not in path.unnamed:  # else the kept friction's note gives the band's whole factor

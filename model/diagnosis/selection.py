@@ -217,7 +217,7 @@ def strained(j: Judged) -> bool:
     reading (a drift settling faster than a quarter of the log, a friction past its range ...): the effect
     larger than the model allows, or standing in for another. Edges ``BOUND_HINTS`` reads otherwise (two
     equal sensor lags, a tendon going slack within the travel) are states a true effect can be in."""
-    return any(h["effect"] == j.name and (h["parameter"], h["bound"]) not in BOUND_HINTS
+    return any(h.effect == j.name and (h.parameter, h.bound) not in BOUND_HINTS
                for h in j.fit.bound_hits())
 
 
@@ -234,8 +234,8 @@ def unstrained_equal(ex: Explorer, d: Decision, best: Judged, acc: list[Judged])
 
 def strain_note(strained_one: Judged, named: Judged, rnd: int) -> str:
     """What the report says when ``unstrained_equal`` named another candidate than the round's winner."""
-    edges = ", ".join(f"{h['parameter']} at the {h['bound']} edge of its search" for h in
-                      strained_one.fit.bound_hits() if h["effect"] == strained_one.name)
+    edges = ", ".join(f"{h.parameter} at the {h.bound} edge of its search" for h in
+                      strained_one.fit.bound_hits() if h.effect == strained_one.name)
     return (f"round {rnd}: {strained_one.name} explained the log no better than {named.name} on the held-out "
             f"blocks, with {edges} (larger than the effect can be, or standing in for another): {named.name} "
             f"is named, the two reported as equally good")

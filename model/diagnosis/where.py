@@ -16,10 +16,11 @@ share of the gap closed in every cell.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.diagnosis.stats import band_table, change_point, effective_n, xcorr_lag
 from warpbridge.model.effects import dynamic_pressure_kpa
 from warpbridge.model.signals import central_range
@@ -144,25 +145,61 @@ def _between_share(r: np.ndarray, lab: np.ndarray, mask: np.ndarray, excess: flo
     return float(min(1.0, ss / excess))
 
 
+@dataclass(frozen=True)
+class ResidualSplit(Record):
+    """A residual split over the cells (``split``): its RMS against the floor, with a second residual's RMS
+    and the share of the gap it closes; the mean offset and its share of the excess; each dimension's cells
+    (``dimensions``: phase, amplitude, time, airspeed, band, with the time trend and the band's
+    cross-correlation beside their cells); each dimension's share of the excess beyond the offset
+    (``scores``), the dominant one and its worst cell. ``reading`` False leaves the scores and the dominant
+    dimension out of the written form (the shrinkage's split, judged by the gap closed in each cell)."""
+
+    rms_deg: float
+    noise_deg: float
+    model_error_deg: float
+    floor_deg: float
+    excess_ms: float
+    after: tuple[float, float | None] | None  # (RMS of the second residual, the share of the gap it closes)
+    mean_deg: float
+    offset_share: float
+    dimensions: dict[str, dict] = field(repr=False)
+    scores: dict[str, float]
+    dominant: str | None
+    dominant_cell: str | None
+    reading: bool = True
+
+    def to_dict(self) -> dict:
+        out = {"rms_deg": self.rms_deg, "noise_deg": self.noise_deg, "model_error_deg": self.model_error_deg,
+               "floor_deg": self.floor_deg, "excess_ms": self.excess_ms}
+        if self.after is not None:
+            out["rms_after_deg"], out["gap_closed"] = self.after
+        out |= {"mean_deg": self.mean_deg, "offset_share": self.offset_share} | self.dimensions
+        if self.reading:
+            out |= {"scores": self.scores, "dominant": self.dominant, "dominant_cell": self.dominant_cell}
+        return out
+
+    def cells_only(self) -> ResidualSplit:
+        """The same split, written without the scores and the dominant dimension."""
+        return replace(self, reading=False)
+
+
 def split(t: np.ndarray, u: np.ndarray, r: np.ndarray, c: Cells, mask: np.ndarray, noise: float,
-          model_error: float = 0.0, r_after: np.ndarray | None = None) -> dict:
+          model_error: float = 0.0, r_after: np.ndarray | None = None) -> ResidualSplit:
     """The residual ``r`` (deg) split over the cells of ``c`` within ``mask``; see the module docstring."""
     floor2 = noise ** 2 + model_error ** 2
     ms = float(np.mean(r[mask] ** 2))
     excess = ms - floor2
-    out: dict = {"rms_deg": math.sqrt(ms), "noise_deg": noise, "model_error_deg": model_error,
-                 "floor_deg": math.sqrt(floor2), "excess_ms": excess}
+    after = None
     if r_after is not None:
         ms2 = float(np.mean(r_after[mask] ** 2))
-        out["rms_after_deg"] = math.sqrt(ms2)
-        out["gap_closed"] = gap_closed(ms, ms2, noise ** 2)
+        after = (math.sqrt(ms2), gap_closed(ms, ms2, noise ** 2))
     scores: dict[str, float] = {}
     bias = float(np.mean(r[mask]))
-    out["mean_deg"] = bias
-    out["offset_share"] = float(min(1.0, bias ** 2 / excess)) if excess > 0 else 0.0
+    offset_share = float(min(1.0, bias ** 2 / excess)) if excess > 0 else 0.0
     varex = max(excess - bias ** 2, 0.0)  # the excess beyond a constant offset, which the splits share out
+    dims: dict[str, dict] = {}
     for dim, lab in c.labels.items():
-        out[dim] = {"cells": _cell_rows(r, lab, c.names[dim], mask, floor2, r_after)}
+        dims[dim] = {"cells": _cell_rows(r, lab, c.names[dim], mask, floor2, r_after)}
         scores[dim] = _between_share(r, lab, mask, varex)
     # time: trend and change point on top of the ten spans
     idx = np.flatnonzero(mask)
@@ -174,11 +211,11 @@ def split(t: np.ndarray, u: np.ndarray, r: np.ndarray, c: Cells, mask: np.ndarra
         neff = effective_n(res)
         se = math.sqrt(float(np.mean(res ** 2)) / max(neff, 1.0) / max(float(np.var(tt)), 1e-300))
         j, shift, share = change_point(rr)
-        out["time"]["trend_deg_per_s"] = float(coef[1])
-        out["time"]["trend_t"] = float(coef[1] / se) if se > 0 else None
-        out["time"]["change_point_s"] = float(tt[j] - t[0])
-        out["time"]["change_point_shift_deg"] = shift
-        out["time"]["change_point_share"] = share
+        dims["time"]["trend_deg_per_s"] = float(coef[1])
+        dims["time"]["trend_t"] = float(coef[1] / se) if se > 0 else None
+        dims["time"]["change_point_s"] = float(tt[j] - t[0])
+        dims["time"]["change_point_shift_deg"] = shift
+        dims["time"]["change_point_share"] = share
     # frequency bands on the longest contiguous run of the mask (the whole log when it is all scored)
     run = _longest_run(mask)
     x = np.gradient(u[run[0]:run[1]], t[run[0]:run[1]]) if run[1] - run[0] > 16 else None
@@ -193,25 +230,22 @@ def split(t: np.ndarray, u: np.ndarray, r: np.ndarray, c: Cells, mask: np.ndarra
             b["excess_power"] = b["power"] - b["noise_power"]
             b["cell"] = f"{b['lo_hz']:g}..{b['hi_hz']:g} Hz"
         if r_after is not None:
-            after = band_table(r_after[run[0]:run[1]], x, c.fs, c.band_edges)
-            for b, a in zip(bands, after, strict=False):
+            after_bands = band_table(r_after[run[0]:run[1]], x, c.fs, c.band_edges)
+            for b, a in zip(bands, after_bands, strict=False):
                 b["power_after"] = a["power"]
                 b["gap_closed"] = gap_closed(b["power"], a["power"], b["noise_power"])
         lag, val = xcorr_lag(x, rs, c.fs)
         coherent = sum(b["coherence"] * b["power"] for b in bands) / total
-        out["band"] = {"cells": bands, "input_rate_xcorr_lag_s": lag, "input_rate_xcorr": val,
-                       "coherent_share": coherent}
+        dims["band"] = {"cells": bands, "input_rate_xcorr_lag_s": lag, "input_rate_xcorr": val,
+                        "coherent_share": coherent}
         var_r = float(np.var(rs))
         scores["band"] = float(min(1.0, coherent * var_r / varex)) if varex > 0 else 0.0
-    out["scores"] = scores
+    dominant = dominant_cell = None
     if excess > 0 and scores:
-        dom = max(scores, key=scores.get)
-        out["dominant"] = dom
-        out["dominant_cell"] = _worst_cell(out[dom]["cells"])
-    else:
-        out["dominant"] = None
-        out["dominant_cell"] = None
-    return out
+        dominant = max(scores, key=scores.get)
+        dominant_cell = _worst_cell(dims[dominant]["cells"])
+    return ResidualSplit(math.sqrt(ms), noise, model_error, math.sqrt(floor2), excess, after, bias, offset_share,
+                         dims, scores, dominant, dominant_cell)
 
 
 def _worst_cell(rows: list[dict]) -> str | None:
