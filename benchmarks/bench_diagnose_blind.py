@@ -89,14 +89,14 @@ from warpbridge.model import excitation  # noqa: E402
 
 IDENT_SOURCES = [*sorted(str(p.relative_to(ROOT)) for p in (ROOT / "model" / "identification").glob("*.py")),
                  "model/signals.py", "model/kernels.py", "model/boucwen.py", "model/initial_state.py",
-                 "bridge/commands/logfile.py"]
+                 "model/monotone.py", "model/effects.py", "model/_jit.py", "bridge/commands/logfile.py",
+                 "bridge/commands/identify.py"]
 DIAG_SOURCES = IDENT_SOURCES + ["benchmarks/plants.py", "benchmarks/truth_chain.py", "benchmarks/truth_cores.py",
                                 "sitl/sheath.py", *sorted(str(p.relative_to(ROOT)) for p in
                                                           (ROOT / "model" / "diagnosis").glob("*.py")),
-                                "model/model_error.py", "model/effects.py", "model/effect_registry.py",
-                                "model/plant.py", "benchmarks/truth_lugre.py", "bridge/commands/diagnose.py",
-                                "bridge/commands/identify.py", "bridge/commands/predict.py",
-                                "benchmarks/bench_diagnose_blind.py"]
+                                "model/model_error.py", "model/effect_registry.py", "model/plant.py",
+                                "benchmarks/truth_lugre.py", "bridge/commands/diagnose.py",
+                                "bridge/commands/predict.py", "benchmarks/bench_diagnose_blind.py"]
 BENCH_S, FIELD_S, CHECK_S, RATE = 40.0, 60.0, 30.0, 500.0
 CHECK_SKIP_S = 1.0
 PLANTS, NONES, PAIRS = 3, 2, 3  # per family and seed: plants; per plant: no-effect cases, random pairs
