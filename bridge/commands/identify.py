@@ -236,7 +236,7 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
     under ``fit.check`` and the lines ``identify`` prints (a warning when it is over ``CARRY_FACTOR`` x the
     bench's and over the check log's noise)."""
     rec = {"log": name} | input_check(mf.params, mf.effects, mf.model_error, check.t, check.u, check.warp,
-                                      check.airspeed)
+                                      check.airspeed).to_dict()
     corrected = mf.model_error is not None
     bench = bench_known_error(mf, rec["noise_deg"], corrected)  # the bench's alone, as diagnose weighs it
     on_check = rec["known_error_corrected_deg" if corrected else "known_error_bare_deg"]

@@ -15,9 +15,11 @@ what the model never carried to another input. No I/O.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from warpbridge.model.diagnosis.records import Record
 from warpbridge.model.initial_state import estimate_plant_start
 from warpbridge.model.model_error import ErrorModel
 from warpbridge.model.plant import Plant
@@ -31,7 +33,22 @@ def _beyond_noise(rms: float, noise: float) -> float:
     return math.sqrt(max(rms ** 2 - noise ** 2, 0.0)) if math.isfinite(rms) else math.nan
 
 
-def input_check(params, effects, error_model: ErrorModel | None, t, u, w, airspeed=None) -> dict:
+@dataclass(frozen=True)
+class CheckScore(Record):
+    """A model's error on a check log (``input_check``), deg: the samples scored and the log's noise; the model's
+    RMS bare and its error beyond the noise; the same with the model-error correction, when it has one."""
+
+    OPTIONAL = ("rms_corrected_deg", "known_error_corrected_deg")
+
+    samples: int
+    noise_deg: float
+    rms_bare_deg: float
+    known_error_bare_deg: float
+    rms_corrected_deg: float | None = None
+    known_error_corrected_deg: float | None = None
+
+
+def input_check(params, effects, error_model: ErrorModel | None, t, u, w, airspeed=None) -> CheckScore:
     """The model's RMS on a check log (after its first ``SKIP_S``), bare and with ``error_model``, the log's
     noise, and each error beyond the noise. Raises ValueError on a log too short to say."""
     t = np.ascontiguousarray(t, dtype=np.float64)
@@ -42,17 +59,17 @@ def input_check(params, effects, error_model: ErrorModel | None, t, u, w, airspe
         raise ValueError(f"the check log has {int(ok.sum())} samples with warp after its first {SKIP_S:g} s; "
                          f"at least {MIN_SAMPLES} are needed")
     noise = noise_floor(w[np.isfinite(w)])
-    out = {"samples": int(ok.sum()), "noise_deg": noise}
+    rms = {}
     for tag, em in (("bare", None), ("corrected", error_model)):
         if tag == "corrected" and em is None:
             continue
         z0, side = estimate_plant_start(Plant(params, effects, em), t, u, w, airspeed)
         plant = Plant(params, effects, em, side)
         _, w_pred = plant.simulate(t, u, airspeed, z0=z0)
-        rms = float(np.sqrt(np.mean((w[ok] - w_pred[ok]) ** 2)))
-        out[f"rms_{tag}_deg"] = rms
-        out[f"known_error_{tag}_deg"] = _beyond_noise(rms, noise)
-    return out
+        rms[tag] = float(np.sqrt(np.mean((w[ok] - w_pred[ok]) ** 2)))
+    corrected = rms.get("corrected")
+    return CheckScore(int(ok.sum()), noise, rms["bare"], _beyond_noise(rms["bare"], noise), corrected,
+                      None if corrected is None else _beyond_noise(corrected, noise))
 
 
 def known_error_on_check(fit_extra: dict, corrected: bool) -> float:
