@@ -546,6 +546,7 @@ class Bridge:
             self.watch.update(self.link.servo_pwm, self.link.armed, self.link.airspeed, dt)
         rows: dict[str, dict[str, float | None]] = {}
         modes = []
+        t_read = self.clock()  # the log's time: the sensors' reads, after the link's messages however long they took
         for name, w in self.wings.items():
             row: dict[str, float | None] = {"setpoint": setpoints[name]}
             try:
@@ -575,7 +576,7 @@ class Bridge:
         except Exception:  # noqa: BLE001
             log.exception("field tuning failed")
         mode = "failsafe" if self.failsafe else ("/".join(dict.fromkeys(modes)) or "none")
-        self._taps(now, mode, rows)
+        self._taps(now, mode, rows, t_read)
 
     def _mode_code(self, mode: str) -> float:
         """``WB_mode``: what runs. When the wings differ, the mode a wing fell back to (e.g. ff for a wing
@@ -586,7 +587,7 @@ class Bridge:
         ran = [m for m in mode.split("/") if m != asked] or [asked]
         return MODE_CODES.get(ran[0], -1.0)
 
-    def _taps(self, now: float, mode: str, rows: dict[str, dict[str, float | None]]) -> None:
+    def _taps(self, now: float, mode: str, rows: dict[str, dict[str, float | None]], t_read: float) -> None:
         try:
             t = self.telemetry
             for name, r in rows.items():
@@ -613,7 +614,7 @@ class Bridge:
             log.exception("telemetry failed")
         if self.log is not None:
             try:
-                self.log.write(now - self.start, mode, self.link.airspeed, rows,
+                self.log.write(t_read - self.start, mode, self.link.airspeed, rows,
                                fc_t=getattr(self.link, "servo_fc_time", None))
             except Exception:  # noqa: BLE001
                 log.exception("cycle log write failed; logging stopped")

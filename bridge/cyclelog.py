@@ -1,7 +1,8 @@
 """Cycle log: one CSV row per control cycle, readable by ``identify``/``diagnose`` (``--wing``).
 
-Columns: ``t, mode, airspeed`` then, per wing (left, right), ``<wing>_setpoint``
-(deg), ``_ff`` (mm), ``_pi`` (mm), ``_u`` (mm, the tendon command), ``_warp``
+Columns: ``t`` (s since the bridge's start, when the cycle read the wings' sensors: a model of the
+servo between rows needs the sensor's time, not the cycle's start), ``mode, airspeed`` then, per wing
+(left, right), ``<wing>_setpoint`` (deg), ``_ff`` (mm), ``_pi`` (mm), ``_u`` (mm, the tendon command), ``_warp``
 (deg, measured) and ``_pulse`` (us), then ``fc_t``: the FC's own time stamp (s since its boot;
 SERVO_OUTPUT_RAW ``time_usec``, 32 bits, wraps after 71.6 min) of the servo-output message the
 row's setpoints come from, by which ``warpbridge review`` joins this log to the FC's.

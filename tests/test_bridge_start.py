@@ -189,3 +189,36 @@ def test_calibration_of_the_lean_bridge_runs_in_a_worker_process(tmp_path):
                        text=True, timeout=900, env=env)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-4000:]
     assert "left 0.7" in r.stdout or "left 0.6" in r.stdout
+
+
+def test_the_cycle_log_stamps_each_row_when_the_sensors_were_read(tmp_path):
+    """The link's messages can take milliseconds to handle before the wings' sensors are read; a row stamped at
+    the cycle's start would place the servo's motion between rows that much wrong for identify."""
+    import csv
+
+    cfg = write_config(tmp_path, sensor="loop:", mode="ff+pi")
+    cfg.write_text(cfg.read_text() + '\n[loop]\nlog = "cycles.csv"\n')
+    rig = Rig.__new__(Rig)
+    rig.t = 0.0
+    link = SimLink()
+    poll = link.poll
+
+    def slow_poll():  # the link's messages take 4 ms to handle this cycle, none the next
+        rig.t += 0.004 if round(rig.t / 0.01) % 2 else 0.0
+        return poll()
+
+    link.poll = slow_poll
+    rig.link = link
+    rig.board = LoopBackend(counts={5: 500, 6: 500}, clock=lambda: rig.t)
+    rig.bridge = Bridge(load_config(cfg), servo=rig.board, sensor=rig.board, link=link, clock=lambda: rig.t)
+    ticks = []
+    for _ in range(10):
+        rig.t = round(rig.t / 0.01) * 0.01 + 0.01  # the loop's next deadline
+        ticks.append(rig.t)
+        link.servo_pwm, link.servo_time = {1: 1500.0}, rig.t
+        rig.bridge.tick()
+    rig.close()
+    with open(tmp_path / "cycles.csv", newline="") as f:
+        t = [float(r["t"]) for r in csv.DictReader(f)]
+    late = [0.004 if round(tk / 0.01) % 2 else 0.0 for tk in ticks]
+    assert t == pytest.approx([tk + dl for tk, dl in zip(ticks, late, strict=True)], abs=2e-6)
