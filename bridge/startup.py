@@ -72,9 +72,11 @@ def load_model_file(config: Config) -> ModelFile:
                  "the hysteresis only, the PI trim sees the delay", 1e3 * mf.effects.delay_s)
     if mf.effects.has_servo:  # identify's servo: the tendon follows the command through its position loop
         rate = mf.effects.servo_rate_mm_s
-        log.info("model: the servo follows its command with a %.0f ms lag%s; the feed-forward inverts the "
+        band = mf.effects.servo_deadband_mm
+        log.info("model: the servo follows its command with a %.0f ms lag%s%s; the feed-forward inverts the "
                  "hysteresis only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s,
-                 f", at most {rate:.3g} mm/s" if math.isfinite(rate) else "")
+                 f", at most {rate:.3g} mm/s" if math.isfinite(rate) else "",
+                 f", within a {band:.3g} mm dead band" if band > 0 else "")
     return mf
 
 

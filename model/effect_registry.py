@@ -178,8 +178,10 @@ REGISTRY: tuple[EffectSpec, ...] = (
                           "moves fast, a delay acts at every speed",
         }),
     EffectSpec(
-        "servo_lag", "the servo's position loop: a first-order approach to each command, capped at its rated speed",
-        (Param("servo_tau_s", "s", 0.0, in_core=True), Param("servo_rate_mm_s", "mm/s", math.inf, in_core=True)),
+        "servo_lag", "the servo's position loop: a first-order approach to each command, capped at its rated speed, "
+        "to the edge of its dead band",
+        (Param("servo_tau_s", "s", 0.0, in_core=True), Param("servo_rate_mm_s", "mm/s", math.inf, in_core=True),
+         Param("servo_deadband_mm", "mm", 0.0, in_core=True)),
         "servo_follow", candidate=False),
     EffectSpec(
         "rate_limit", "servo slew-rate limit", (Param("rate_mm_s", "mm/s", math.inf, in_core=True),), "rate_limited",

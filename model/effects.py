@@ -11,8 +11,9 @@ parameters, placed where it acts physically. The augmented plant is the chain::
 | name        | parameters                     | operator                                             |
 |-------------|--------------------------------|------------------------------------------------------|
 | delay       | delay_s                        | u(t - delay_s), linear interpolation                 |
-| servo_lag   | servo_tau_s, servo_rate_mm_s   | the servo's position loop: a first-order approach    |
-|             |                                | capped at its rated speed, each row's command held   |
+| servo_lag   | servo_tau_s, servo_rate_mm_s,  | the servo's position loop: a first-order approach    |
+|             | servo_deadband_mm              | capped at its rated speed to the edge of its dead    |
+|             |                                | band, each row's command held                        |
 | rate_limit  | rate_mm_s                      | slew-limited tendon travel                           |
 | backlash    | backlash_mm                    | play operator of total width backlash_mm             |
 | friction    | friction_scale, friction_pivot | the loop widens or narrows about a level inside it,  |
@@ -97,6 +98,7 @@ class Effects:
     delay_s: float = 0.0
     servo_tau_s: float = 0.0  # the servo's position loop, a first-order lag (part of the rig, found by identify)
     servo_rate_mm_s: float = math.inf  # the servo's rated speed, capping that approach (mm/s of tendon)
+    servo_deadband_mm: float = 0.0  # the servo's dead band: corrections within half of it are not made
     rate_mm_s: float = math.inf
     backlash_mm: float = 0.0
     friction_scale: float = 1.0
@@ -135,8 +137,9 @@ class Effects:
             if not isinstance(v, (int, float)) or math.isnan(v):
                 raise ValueError(f"effect parameter {f.name} must be a number")
             object.__setattr__(self, f.name, float(v))
-        if self.delay_s < 0 or self.backlash_mm < 0 or self.sensor_tau_s < 0 or self.servo_tau_s < 0:
-            raise ValueError("delay, servo lag, backlash and sensor lag cannot be negative")
+        if (self.delay_s < 0 or self.backlash_mm < 0 or self.sensor_tau_s < 0 or self.servo_tau_s < 0
+                or self.servo_deadband_mm < 0):
+            raise ValueError("delay, servo lag, servo dead band, backlash and sensor lag cannot be negative")
         if not self.rate_mm_s > 0 or not self.servo_rate_mm_s > 0:
             raise ValueError("rate limit and servo speed must be positive")
         if not self.friction_scale > 0 or not self.pretension_gain > 0:
@@ -190,8 +193,8 @@ class Effects:
 
     @property
     def has_servo(self) -> bool:
-        """True when the command passes through the servo's position loop (a lag, a rated speed or both)."""
-        return self.servo_tau_s > 0 or math.isfinite(self.servo_rate_mm_s)
+        """True when the command passes through the servo's position loop (a lag, a rated speed, a dead band)."""
+        return self.servo_tau_s > 0 or math.isfinite(self.servo_rate_mm_s) or self.servo_deadband_mm > 0
 
     @property
     def has_capstan(self) -> bool:
@@ -464,10 +467,16 @@ def lagged(t, w, tau, y0):
 
 
 @njit(cache=True)
-def servo_move(y, c, dt, tau, rate):
-    """Servo position after ``dt`` s holding command ``c`` from ``y``: it approaches c as a first-order lag of
-    time constant ``tau``, its speed capped at ``rate`` (exactly: at the cap until within rate * tau of c, then
-    the exponential). ``tau`` 0: at the rate straight to c (there at once without a cap)."""
+def servo_move(y, c, dt, tau, rate, half=0.0):
+    """Servo position after ``dt`` s holding command ``c`` from ``y``: a correction within its half dead band
+    ``half`` is not made; otherwise it heads for the near edge of the band about c (c less half toward y) as a
+    first-order lag of time constant ``tau``, its speed capped at ``rate`` (exactly: at the cap until within
+    rate * tau of that edge, then the exponential). ``tau`` 0: at the rate straight there (at once without a
+    cap)."""
+    e = c - y
+    if abs(e) <= half:
+        return y
+    c = c - math.copysign(half, e)
     e = c - y
     if tau <= 0.0:
         step = rate * dt
@@ -482,17 +491,18 @@ def servo_move(y, c, dt, tau, rate):
 
 
 @njit(cache=True)
-def servo_follow(t, u, tau, rate, y0):
-    """The servo's travel at each row for commands u (``servo_move``). Each row's command is held until the next
-    row, and a row's measurement sees only the commands before it: the bridge reads the sensor, then sets the
-    servo, and any servo board holds a pulse until the next."""
+def servo_follow(t, u, tau, rate, y0, deadband=0.0):
+    """The servo's travel at each row for commands u (``servo_move``, dead band ``deadband`` wide). Each row's
+    command is held until the next row, and a row's measurement sees only the commands before it: the bridge
+    reads the sensor, then sets the servo, and any servo board holds a pulse until the next."""
     n = t.shape[0]
     out = np.empty(n)
     y = y0
     if n:
         out[0] = y
+    half = 0.5 * deadband
     for k in range(1, n):
-        y = servo_move(y, u[k - 1], t[k] - t[k - 1], tau, rate)
+        y = servo_move(y, u[k - 1], t[k] - t[k - 1], tau, rate, half)
         out[k] = y
     return out
 
@@ -512,7 +522,7 @@ def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: 
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
     if eff.has_servo:
-        x = servo_follow(t, x, eff.servo_tau_s, eff.servo_rate_mm_s, float(x[0]))
+        x = servo_follow(t, x, eff.servo_tau_s, eff.servo_rate_mm_s, float(x[0]), eff.servo_deadband_mm)
     if math.isfinite(eff.rate_mm_s):
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.has_slack:

@@ -110,7 +110,7 @@ class PlantStepper:
         x = self._delayed(float(t), float(u))
         if e.has_servo:  # the servo's position loop, as effects.servo_follow: it holds the previous command
             self._servo_y = servo_move(self._servo_y, self._servo_c, float(t) - self._t_prev, e.servo_tau_s,
-                                       e.servo_rate_mm_s)
+                                       e.servo_rate_mm_s, 0.5 * e.servo_deadband_mm)
             self._servo_c, x = x, self._servo_y
         if math.isfinite(e.rate_mm_s):
             step = e.rate_mm_s * (t - self._t_prev)

@@ -354,6 +354,7 @@ def test_the_servos_lag_is_found_in_front_of_the_hysteresis_on_a_stepped_closed_
     _, w = noisy_log(servo_follow(t, u, 0.02, math.inf, float(u[0])), 6)
     res = identify(t, u, w, maxiter=60)
     assert res.servo_tau_s == pytest.approx(0.02, abs=0.006) and math.isinf(res.servo_rate_mm_s)
+    assert res.servo_deadband_mm == 0.0  # none where the servo has none
     assert res.trace.lag_train_rms[1] < 0.98 * res.trace.lag_train_rms[0]
     assert res.heldout_rms < 1.5 * res.noise
     bare = identify(t, u, w, maxiter=60, max_lag_s=0.0)  # fed the raw command, the model reverses at the spikes
@@ -369,6 +370,17 @@ def test_a_servo_that_crosses_the_commands_jumps_at_its_rated_speed_is_found_cap
     assert res.servo_rate_mm_s == pytest.approx(60.0, rel=0.25)
     assert res.heldout_rms < 1.5 * res.noise
     assert res.fit_dict()["servo_rate_mm_s"] == res.servo_rate_mm_s
+
+
+def test_a_servos_dead_band_is_found_where_it_stops_short_of_each_step():
+    t = T[: T.size // 2]
+    u = stepped_command(t, 5)  # each step the servo ends a half band short of the command, from its side
+    # a 0.15 mm band: 10 us of pulse on a 10 mm horn, a worn hobby servo's
+    _, w = noisy_log(servo_follow(t, u, 0.02, math.inf, float(u[0]), 0.15), 6)
+    res = identify(t, u, w, maxiter=60)
+    assert 0.07 <= res.servo_deadband_mm <= 0.3
+    assert res.heldout_rms < 1.2 * res.noise
+    assert res.fit_dict()["servo_deadband_mm"] == res.servo_deadband_mm
 
 
 def test_no_servo_lag_is_kept_where_the_tendon_follows_the_command(fitted):

@@ -170,11 +170,11 @@ def test_aero_load_loses_warp_growing_with_airspeed():
     assert loss[12.0] / loss[7.0] == pytest.approx((12.0 / 7.0) ** 2, rel=0.01)  # dynamic pressure
 
 
-@pytest.mark.parametrize("rate_mm_s", [np.inf, 60.0])
-def test_the_models_servo_is_the_simulated_servo_fed_the_same_held_commands(rate_mm_s):
+@pytest.mark.parametrize(("rate_mm_s", "deadband_us"), [(np.inf, 0.0), (60.0, 0.0), (np.inf, 2.0), (60.0, 4.0)])
+def test_the_models_servo_is_the_simulated_servo_fed_the_same_held_commands(rate_mm_s, deadband_us):
     """``effects.servo_follow`` (what identify puts in front of the model) against the SITL's servo stepped in
-    0.1 ms substeps with no deadband or quantum: each row's command held until the next, the travel read at
-    each row before its command is set."""
+    0.1 ms substeps with no quantum: each row's command held until the next, the travel read at each row
+    before its command is set, a correction within half the dead band not made."""
     import math
 
     from warpbridge.model.effects import servo_follow
@@ -182,7 +182,7 @@ def test_the_models_servo_is_the_simulated_servo_fed_the_same_held_commands(rate
 
     speed = 1e6 if math.isinf(rate_mm_s) else rate_mm_s  # mm/s: no cap the commands reach
     base = ServoSpec(deadband_us=0.0, quantum_us=0.0, tau_s=0.02)
-    spec = ServoSpec(deadband_us=0.0, quantum_us=0.0, tau_s=0.02,
+    spec = ServoSpec(deadband_us=deadband_us, quantum_us=0.0, tau_s=0.02,
                      s_per_60deg=60.0 / (speed / base.mm_per_us) / base.deg_per_us)
     rng = np.random.default_rng(3)
     t = np.cumsum(rng.uniform(0.008, 0.012, 400))  # a 100 Hz loop's uneven cycles
@@ -193,7 +193,12 @@ def test_the_models_servo_is_the_simulated_servo_fed_the_same_held_commands(rate
         for tk in np.linspace(t[k - 1], t[k], 101)[1:]:
             servo.step(tk, spec.pulse_of(u[k - 1]))
         truth.append(servo.mm)
-    x = servo_follow(t, u, 0.02, rate_mm_s, float(u[0]))
+    band = deadband_us * spec.mm_per_us
+    x = servo_follow(t, u, 0.02, rate_mm_s, float(u[0]), band)
     assert np.max(np.abs(x - np.array(truth))) < 0.01  # mm, against jumps of up to 7 mm
+    if band > 0:  # the band is seen: without it the model's servo is off by up to half of it after each step
+        plain = servo_follow(t, u, 0.02, rate_mm_s, float(u[0]))
+        assert np.max(np.abs(plain - np.array(truth))) > 0.4 * band
+        assert np.sqrt(np.mean((x - np.array(truth)) ** 2)) < 0.2 * np.sqrt(np.mean((plain - np.array(truth)) ** 2))
     if math.isfinite(rate_mm_s):
         assert np.max(np.abs(np.diff(x)) / np.diff(t)) <= rate_mm_s * (1 + 1e-9)

@@ -161,7 +161,8 @@ def main(args: argparse.Namespace) -> int:
     # z0 stays at rest: the state at the start of this log says nothing about another log's (predict
     # and diagnose estimate it from each log's first samples); the fit record keeps this log's
     mf = ModelFile(params=res.params, effects=Effects(delay_s=res.delay_s, servo_tau_s=res.servo_tau_s,
-                                                         servo_rate_mm_s=res.servo_rate_mm_s), fit=fit,
+                                                         servo_rate_mm_s=res.servo_rate_mm_s,
+                                                         servo_deadband_mm=res.servo_deadband_mm), fit=fit,
                    meta=meta)
     mf.model_error = bench_model_error(mf, data)
     check_lines = []
@@ -186,10 +187,11 @@ def main(args: argparse.Namespace) -> int:
     if res.delay_s > 0:
         print(f"  transport delay {1e3 * res.delay_s:.1f} ms in front of the model (the rig's servo, link and sensor "
               "lag; effects.delay_s)")
-    if res.servo_tau_s > 0 or math.isfinite(res.servo_rate_mm_s):
+    if res.servo_tau_s > 0 or math.isfinite(res.servo_rate_mm_s) or res.servo_deadband_mm > 0:
         cap = f", capped at {res.servo_rate_mm_s:.3g} mm/s" if math.isfinite(res.servo_rate_mm_s) else ""
-        print(f"  servo lag {1e3 * res.servo_tau_s:.1f} ms{cap} in front of the model (the servo's position loop, "
-              "a first-order lag at most at its rated speed; effects.servo_lag)")
+        band = f", dead band {res.servo_deadband_mm:.3g} mm" if res.servo_deadband_mm > 0 else ""
+        print(f"  servo lag {1e3 * res.servo_tau_s:.1f} ms{cap}{band} in front of the model (the servo's position "
+              "loop, a first-order lag at most at its rated speed to the edge of its dead band; effects.servo_lag)")
     print(f"  u = {p.a1:.5g} w^2 + {p.a2:.5g} w + {p.a3:.5g} + {p.az:g} z;  A = {p.A:.5g}, n = {p.n:.4g}, "
           f"b = [{', '.join(f'{b:.4g}' for b in p.b)}]")
     if res.trace.restarts:

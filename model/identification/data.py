@@ -12,7 +12,7 @@ import numpy as np
 
 from warpbridge.model.effects import servo_follow
 from warpbridge.model.identification.space import BOUNDS_ONE_SIDED, BOUNDS_TWO_SIDED, Normaliser
-from warpbridge.model.signals import noise_floor, reversal_indices
+from warpbridge.model.signals import central_range, noise_floor, reversal_indices
 
 
 def check_log(t: np.ndarray, u: np.ndarray, w: np.ndarray, min_samples: int = 50) -> None:
@@ -33,27 +33,33 @@ def check_log(t: np.ndarray, u: np.ndarray, w: np.ndarray, min_samples: int = 50
 @dataclass(frozen=True)
 class Servo:
     """The servo's position loop in front of the model (``effects.servo_follow``): a first-order lag of
-    ``tau_s`` capped at ``rate_mm_s`` (inf: no cap); the default passes the command through as logged."""
+    ``tau_s`` capped at ``rate_mm_s`` (inf: no cap) to the edge of a dead band ``deadband_mm`` wide; the
+    default passes the command through as logged."""
 
     tau_s: float = 0.0
     rate_mm_s: float = math.inf
+    deadband_mm: float = 0.0
 
     @property
     def active(self) -> bool:
-        return self.tau_s > 0 or math.isfinite(self.rate_mm_s)
+        return self.tau_s > 0 or math.isfinite(self.rate_mm_s) or self.deadband_mm > 0
 
     @property
     def parameters(self) -> int:
         """How many parameters it adds to the model (for the information criterion)."""
-        return int(self.tau_s > 0) + int(math.isfinite(self.rate_mm_s))
+        return int(self.tau_s > 0) + int(math.isfinite(self.rate_mm_s)) + int(self.deadband_mm > 0)
 
     def apply(self, t: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The tendon travel the servo gives for commands u (u itself when inactive)."""
-        return servo_follow(t, u, self.tau_s, self.rate_mm_s, float(u[0])) if self.active else u
+        if not self.active:
+            return u
+        return servo_follow(t, u, self.tau_s, self.rate_mm_s, float(u[0]), self.deadband_mm)
 
     def __str__(self) -> str:
         lag = f"{1e3 * self.tau_s:.1f} ms"
-        return lag + (f" capped at {self.rate_mm_s:.3g} mm/s" if math.isfinite(self.rate_mm_s) else "")
+        cap = f" capped at {self.rate_mm_s:.3g} mm/s" if math.isfinite(self.rate_mm_s) else ""
+        band = f", dead band {1e3 * self.deadband_mm:.0f} um" if self.deadband_mm > 0 else ""
+        return lag + cap + band
 
 
 @dataclass
@@ -84,6 +90,12 @@ class LogData:
         """The same log with the model's input passed through ``servo``."""
         x = servo.apply(self.t, self.u)
         return replace(self, servo=servo, x=x, x_hat=(x - self.norm.uc) / self.norm.us)
+
+    @property
+    def travel_span(self) -> float:
+        """The command's central range (mm): what a dead band is measured against."""
+        lo, hi = central_range(self.u)
+        return hi - lo
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -33,7 +33,9 @@ this package's modules (named in brackets where a step's name is not its module'
    input-side cost by ``LAG_GAIN_SURE`` (or by ``LAG_GAIN`` and a short refinement of the final model
    without it fits better through it), is put in front of the model once the model without it is final
    (steps 5-8): the design is solved again through it and refined, with the model found without it as
-   one more start, checked for a fold and against the simpler models, and the servo is kept only when
+   one more start, checked for a fold and against the simpler models; its dead band, lag and cap are then
+   tuned on the forward error (``servo.servo_tune``: the input-side cost cannot see a dead band) and the
+   model refined again through the tuned servo when that fits better; the servo is kept only when
    the result fits the training part better by ``DELAY_GAIN`` and by what the information criterion asks
    of its parameters on the log's effective samples (``servo.lag_pays``; ``servo_tau_s``, ``servo_rate_mm_s``;
    not with a delay scan, whose delay stands for it).
@@ -100,7 +102,14 @@ from warpbridge.model.identification.global_search import global_search
 from warpbridge.model.identification.path import refine
 from warpbridge.model.identification.refine import Candidate, Refiner, SearchTrace, at_exponent_edge, evaluate
 from warpbridge.model.identification.result import IdentResult
-from warpbridge.model.identification.servo import LAG_GAIN_SURE, LAG_GRID_S, lag_checks, lag_pays, lag_scan
+from warpbridge.model.identification.servo import (
+    LAG_GAIN_SURE,
+    LAG_GRID_S,
+    lag_checks,
+    lag_pays,
+    lag_scan,
+    servo_tune,
+)
 from warpbridge.model.identification.uncertainty import uncertainty
 from warpbridge.model.signals import central_range, linear_baseline
 
@@ -207,7 +216,16 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
         with_lag = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
         with_lag = simpler_models(data, with_lag, lag_starts, trace, search, progress)
-        trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s
+        tuned = servo_tune(data, with_lag.theta, lag, data.travel_span)
+        if tuned != lag:  # the model refined again through the servo tuned on the forward error
+            data = plain.with_servo(tuned)
+            th, d = search(with_lag.theta[None, :], ["servo tuned"], None, "lag")
+            again = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
+            if again.train_rms < with_lag.train_rms:
+                lag, with_lag = tuned, again
+            else:
+                data = plain.with_servo(lag)
+        trace.lag_s, trace.lag_rate_mm_s, trace.lag_deadband_mm = lag.tau_s, lag.rate_mm_s, lag.deadband_mm
         trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
         if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask], lag.parameters):
             best = with_lag
@@ -229,7 +247,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         support=support_check(data.t, data.u, data.w, best.w_pred, data.train_mask, data.held_mask, data.noise),
         delay_s=best.delay, travel_mm=central_range(data.u), uncertainty=unc, excitation=exc,
         linear_train_rms=trace.line_train_rms, seed=seed, servo_tau_s=data.servo.tau_s,
-        servo_rate_mm_s=data.servo.rate_mm_s)
+        servo_rate_mm_s=data.servo.rate_mm_s, servo_deadband_mm=data.servo.deadband_mm)
 
 
 def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, seed: int, trace: SearchTrace,

@@ -43,6 +43,7 @@ class IdentResult:
     seed: int = 0  # the design's scramble (0: the default's)
     servo_tau_s: float = 0.0  # the servo's lag in front of the model (s): it sees u through a first-order lag
     servo_rate_mm_s: float = math.inf  # ... capped at this speed (mm/s; inf: no cap)
+    servo_deadband_mm: float = 0.0  # ... to the edge of this dead band (mm; 0: none)
 
     def fit_dict(self) -> dict:
         d = {"train_rms_deg": self.train_rms, "heldout_rms_deg": self.heldout_rms, "noise_deg": self.noise,
@@ -51,6 +52,7 @@ class IdentResult:
              "evaluations": self.evaluations, "method": "variable-projection design + levenberg-marquardt",
              "z0_start_of_log": self.z0, "delay_s": self.delay_s, "servo_tau_s": self.servo_tau_s,
              "servo_rate_mm_s": self.servo_rate_mm_s if math.isfinite(self.servo_rate_mm_s) else None,
+             "servo_deadband_mm": self.servo_deadband_mm,
              "linear_train_rms_deg": self.linear_train_rms,
              "design_seed": self.seed}
         if self.travel_mm is not None:

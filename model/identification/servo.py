@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from warpbridge.model.identification.data import LogData, Servo
 from warpbridge.model.identification.delay import DELAY_GAIN, DELAY_SCAN_ITER, parabola_vertex
 from warpbridge.model.identification.design import InputSide, WarpPath, distinct_best, shape_bounds
 from warpbridge.model.identification.path import FIT_TOL_Z, SEARCH_POINTS, SEARCH_REVERSALS, FitPath, Objective, refine
+from warpbridge.model.identification.refine import evaluate
 from warpbridge.model.signals import effective_samples
 
 log = logging.getLogger(__name__)
@@ -30,6 +32,14 @@ LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves
 # speed caps the scan tries, per the fastest the lagged command asks for: a servo crosses a large jump of the
 # command at its rated speed (a hobby servo's 0.1 s per 60 deg on a 10 mm horn is about 100 mm/s of tendon)
 RATE_FRACTIONS = (0.7, 0.5, 0.35, 0.25, 0.18, 0.12)
+# the servo tuned on the forward error (``servo_tune``): lags, speed caps (per the scan's) and dead bands (per the
+# command's central range: a hobby servo's 1-8 us of pulse is 0.016-0.13 mm of tendon on a 10 mm horn) tried
+TUNE_LAGS_S = (0.005, 0.01, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05, 0.065, 0.08)
+TUNE_RATE_FACTORS = (0.7, 0.85, 1.0, 1.2, 1.45)
+TUNE_DEADBANDS = (0.0, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032)
+TUNE_ITER = 8  # refinement steps of the model through each servo tried
+TUNE_PASSES = 2  # passes over the three coordinates (the second only when the first moved one)
+TUNE_GAIN = 0.01  # a coordinate moves only when the training RMS falls by this share: no dead band from the noise
 
 
 def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, float]:
@@ -89,6 +99,46 @@ def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, flo
     log.info("servo %s: the design's best input-side cost %.3g at no lag, %.3g at the scan's best", servo, none,
              tried[lag])
     return servo, ratio
+
+
+def servo_tune(data: LogData, theta: np.ndarray, servo: Servo, span_mm: float) -> Servo:
+    """The scan's servo tuned on the forward error: its dead band, its lag and its speed cap, one at a time, each
+    over a grid (``TUNE_DEADBANDS`` of ``span_mm``, the command's central range; ``TUNE_LAGS_S``;
+    ``TUNE_RATE_FACTORS`` of the scan's cap, and none), every servo judged by the training RMS of the model run free
+    after a short refinement (``TUNE_ITER`` steps on the search's path) of ``theta`` through it. The input-side
+    cost the scan uses cannot judge a dead band, which moves the tendon by less than the warp's noise is worth
+    in travel, nor tell a lag from a cap; nor can the search's stretches, each started from the state its own
+    first samples imply: the tendon's whole path through the model can. A coordinate moves only when the fit
+    improves by ``TUNE_GAIN``. Returns the servo that fits best."""
+    lo, hi = data.bounds
+    tried: dict[Servo, tuple[float, np.ndarray]] = {}
+
+    def rms(sv: Servo, start: np.ndarray) -> float:
+        if sv not in tried:
+            d = data.with_servo(sv)
+            obj = Objective(FitPath.build(d.x_hat, d.w_hat, d.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS),
+                            d.norm.c)
+            th = refine(obj, start, lo, hi, TUNE_ITER, tol=FIT_TOL_Z).theta
+            tried[sv] = (evaluate(d, th, 0.0).train_rms, th)
+        return tried[sv][0]
+
+    best, start = servo, theta
+    r_best = rms(best, start)
+    rates = [math.inf] + ([f * servo.rate_mm_s for f in TUNE_RATE_FACTORS] if math.isfinite(servo.rate_mm_s) else [])
+    grids = (("deadband_mm", [f * span_mm for f in TUNE_DEADBANDS]), ("tau_s", [servo.tau_s, *TUNE_LAGS_S]),
+             ("rate_mm_s", rates))  # the band first: the scan could not see it, and a lag or cap stands in for it
+    for _ in range(TUNE_PASSES):
+        moved = False
+        for name, grid in grids:
+            for v in grid:
+                sv = replace(best, **{name: float(v)})
+                if rms(sv, start) < (1.0 - TUNE_GAIN) * r_best:
+                    best, r_best, moved = sv, tried[sv][0], True
+            start = tried[best][1]
+        if not moved:
+            break
+    log.info("servo tuned on the forward error: %s (from %s; %d servos tried)", best, servo, len(tried))
+    return best
 
 
 def lag_checks(data: LogData, theta: np.ndarray, servo: Servo) -> bool:
