@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def write_config(tmp_path: Path, *, sensor: str = "none", mode: str = "ff+pi", bias: float = 2.0,
-                 right_sensor: bool = True) -> Path:
+                 right_sensor: bool = True, cycle_log: str | None = None) -> Path:
     cfg = tmp_path / "wb.toml"
     sensors = sensor != "none"
     cfg.write_text(f"""
@@ -55,7 +55,7 @@ mode = "{mode}"
 [wing.right.sensor]
 counts = [0, 1000]
 deg = [0, 20]
-""")
+""" + (f'[loop]\nlog = "{cycle_log}"\n' if cycle_log else ""))
     return cfg
 
 
@@ -196,26 +196,19 @@ def test_the_cycle_log_stamps_each_row_when_the_sensors_were_read(tmp_path):
     the cycle's start would place the servo's motion between rows that much wrong for identify."""
     import csv
 
-    cfg = write_config(tmp_path, sensor="loop:", mode="ff+pi")
-    cfg.write_text(cfg.read_text() + '\n[loop]\nlog = "cycles.csv"\n')
-    rig = Rig.__new__(Rig)
-    rig.t = 0.0
-    link = SimLink()
-    poll = link.poll
+    rig = Rig(tmp_path, counts={5: 500, 6: 500}, sensor="loop:", cycle_log="cycles.csv")
+    poll = rig.link.poll
 
     def slow_poll():  # the link's messages take 4 ms to handle this cycle, none the next
         rig.t += 0.004 if round(rig.t / 0.01) % 2 else 0.0
         return poll()
 
-    link.poll = slow_poll
-    rig.link = link
-    rig.board = LoopBackend(counts={5: 500, 6: 500}, clock=lambda: rig.t)
-    rig.bridge = Bridge(load_config(cfg), servo=rig.board, sensor=rig.board, link=link, clock=lambda: rig.t)
+    rig.link.poll = slow_poll
     ticks = []
     for _ in range(10):
         rig.t = round(rig.t / 0.01) * 0.01 + 0.01  # the loop's next deadline
         ticks.append(rig.t)
-        link.servo_pwm, link.servo_time = {1: 1500.0}, rig.t
+        rig.link.servo_pwm, rig.link.servo_time = {1: 1500.0}, rig.t
         rig.bridge.tick()
     rig.close()
     with open(tmp_path / "cycles.csv", newline="") as f:

@@ -216,16 +216,16 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
         with_lag = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
         with_lag = simpler_models(data, with_lag, lag_starts, trace, search, progress)
-        tuned = servo_tune(data, with_lag.theta, lag, data.travel_span)
+        tuned = servo_tune(data, with_lag.theta, lag)
         if tuned != lag:  # the model refined again through the servo tuned on the forward error
-            data = plain.with_servo(tuned)
+            scanned, data = data, plain.with_servo(tuned)
             th, d = search(with_lag.theta[None, :], ["servo tuned"], None, "lag")
             again = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
             if again.train_rms < with_lag.train_rms:
                 lag, with_lag = tuned, again
             else:
-                data = plain.with_servo(lag)
-        trace.lag_s, trace.lag_rate_mm_s, trace.lag_deadband_mm = lag.tau_s, lag.rate_mm_s, lag.deadband_mm
+                data = scanned
+        trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s
         trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
         if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask], lag.parameters):
             best = with_lag

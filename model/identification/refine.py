@@ -64,7 +64,6 @@ class SearchTrace:
     global_train_rms: tuple[float, float] | None = None  # training RMS (deg) from the design and from the search
     lag_s: float = 0.0  # the servo lag the scan proposed (s; 0: none), kept or not
     lag_rate_mm_s: float = math.inf  # ... and the speed cap it proposed with it (inf: none)
-    lag_deadband_mm: float = 0.0  # ... and the dead band (mm; 0: none)
     lag_train_rms: tuple[float, float] | None = None  # training RMS (deg) without the servo and with it
 
 

@@ -101,9 +101,9 @@ def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, flo
     return servo, ratio
 
 
-def servo_tune(data: LogData, theta: np.ndarray, servo: Servo, span_mm: float) -> Servo:
+def servo_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
     """The scan's servo tuned on the forward error: its dead band, its lag and its speed cap, one at a time, each
-    over a grid (``TUNE_DEADBANDS`` of ``span_mm``, the command's central range; ``TUNE_LAGS_S``;
+    over a grid (``TUNE_DEADBANDS`` of the command's central range, ``LogData.travel_span``; ``TUNE_LAGS_S``;
     ``TUNE_RATE_FACTORS`` of the scan's cap, and none), every servo judged by the training RMS of the model run free
     after a short refinement (``TUNE_ITER`` steps on the search's path) of ``theta`` through it. The input-side
     cost the scan uses cannot judge a dead band, which moves the tendon by less than the warp's noise is worth
@@ -125,15 +125,16 @@ def servo_tune(data: LogData, theta: np.ndarray, servo: Servo, span_mm: float) -
     best, start = servo, theta
     r_best = rms(best, start)
     rates = [math.inf] + ([f * servo.rate_mm_s for f in TUNE_RATE_FACTORS] if math.isfinite(servo.rate_mm_s) else [])
-    grids = (("deadband_mm", [f * span_mm for f in TUNE_DEADBANDS]), ("tau_s", [servo.tau_s, *TUNE_LAGS_S]),
+    grids = (("deadband_mm", [f * data.travel_span for f in TUNE_DEADBANDS]), ("tau_s", [servo.tau_s, *TUNE_LAGS_S]),
              ("rate_mm_s", rates))  # the band first: the scan could not see it, and a lag or cap stands in for it
     for _ in range(TUNE_PASSES):
         moved = False
         for name, grid in grids:
             for v in grid:
                 sv = replace(best, **{name: float(v)})
-                if rms(sv, start) < (1.0 - TUNE_GAIN) * r_best:
-                    best, r_best, moved = sv, tried[sv][0], True
+                r = rms(sv, start)
+                if r < (1.0 - TUNE_GAIN) * r_best:
+                    best, r_best, moved = sv, r, True
             start = tried[best][1]
         if not moved:
             break
