@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from warpbridge.model._jit import njit, prange
+from warpbridge.model._jit import njit
 
 # layout of the parameter vector
 P_A1, P_A2, P_A3, P_AZ, P_A, P_N = 0, 1, 2, 3, 4, 5
@@ -517,27 +517,10 @@ def forward_run(p, u, w0: float, z0: float, w_out, z_out) -> int:
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
-def forward_sse(p, u, w_meas, weight, w0: float, z0: float) -> float:
-    """Weighted sum of squared output error of the forward map (for fitting)."""
-    sse = 0.0
-    wp = w0
-    zp = z0
-    zn = -1.0
-    for k in range(u.shape[0]):
-        w, z, zn, st = forward_step_zn(p, wp, zp, zn, u[k])
-        if st != 0:  # diverged, or u beyond the model's monotone range: not a candidate
-            return np.inf
-        wp = w
-        zp = z
-        e = w - w_meas[k]
-        sse += weight[k] * e * e
-    return sse
-
-
-@njit(cache=True, fastmath=False, error_model="numpy")
 def forward_sse_budget(p, u, w_meas, weight, w0: float, z0: float, budget: int, tol: float):
-    """``forward_sse`` within a total budget of sub-steps of local error ``tol``: inf when the
-    parameter set needs more.
+    """Weighted sum of squared output error of the forward map from (w0, z0), within a total budget of
+    sub-steps of local error ``tol``: inf when the parameter set needs more, or diverges. A sample beyond
+    the model's monotone range is held at its edge, as ``forward_run`` holds it.
 
     A global search meets parameter sets that are not models of any wing (a state stuck
     where it is unstable, a saturation far stiffer than the data): without a budget each
@@ -550,17 +533,10 @@ def forward_sse_budget(p, u, w_meas, weight, w0: float, z0: float, budget: int, 
     for k in range(u.shape[0]):
         w, z, zn, st, taken = _forward_solve(p, wp, zp, zn, u[k], budget - used, tol)
         used += taken
-        if st != 0:
+        if st > 1:  # diverged or out of budget; a saturated sample (1) is held where forward_run holds it
             return np.inf
         wp = w
         zp = z
         e = w - w_meas[k]
         sse += weight[k] * e * e
     return sse
-
-
-@njit(cache=True, parallel=True)
-def forward_sse_many(P, u, w_meas, weight, w0: float, z0: float, out) -> None:
-    """forward_sse for each row of P, in parallel over the rows (both cores)."""
-    for i in prange(P.shape[0]):
-        out[i] = forward_sse(P[i], u, w_meas, weight, w0, z0)

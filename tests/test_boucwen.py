@@ -247,3 +247,22 @@ def test_plant_stepper_gives_identical_results_to_plant_simulate(effects):
     steps = np.array([s.step(tk, uk) for tk, uk in zip(t, u, strict=True)])
     assert np.array_equal(steps[:, 0], w_true)
     np.testing.assert_allclose(steps[:, 1], w_meas, rtol=0, atol=1e-12)
+
+
+def test_the_fits_budgeted_cost_holds_a_saturated_sample_where_the_forward_map_does():
+    # a backbone that turns back at 10 deg (a1 < 0), driven past its top: the forward map holds the warp at the
+    # edge on those samples (flagged) and goes on; the search's cost must score the same warps, not reject the
+    # model (the best fits of measured logs saturate on a few samples)
+    from warpbridge.model import kernels as K
+
+    p = BoucWenParams(a1=-0.05, a2=1.0, a3=0.0, az=1.0, A=1.0, n=2.0, b=(0.3, 0.0, 0.0, 0.0, 0.2, 0.0))
+    t = np.arange(0, 4000) / 500.0
+    u = 3.0 + 3.5 * np.sin(2 * np.pi * 0.5 * t)  # beyond the model's monotone range near each crest
+    w, _, flagged = forward(p, u, w0=0.0, z0=0.0)
+    assert 0 < flagged < u.size // 4
+    w_meas = w + 0.05 * np.random.default_rng(0).standard_normal(u.size)
+    pa = p.to_array()
+    want = float(np.sum((w - w_meas) ** 2))
+    for tol in (1e-6, 1e-8):
+        got = K.forward_sse_budget(pa, u, w_meas, np.ones(u.size), 0.0, 0.0, 10 ** 7, tol)
+        assert got == pytest.approx(want, rel=1e-3)

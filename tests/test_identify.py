@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from warpbridge.model.boucwen import BoucWenParams, forward, inverse
-from warpbridge.model.effects import servo_follow
+from warpbridge.model.effects import play, servo_follow
 from warpbridge.model.excitation import filtered_random, multisine_reversals
 from warpbridge.model.identification import identify, support_check
 from warpbridge.model.identification.path import fit_stretches
@@ -535,19 +535,28 @@ def _wide_two_sided_log():
 
 
 def test_starts_that_disagree_escalate_to_a_global_search_and_the_lowest_training_error_is_kept():
-    # a wide loop through zero warp: the design's refined starts settle in different minima, so the global
-    # search runs and finds a better basin; the fit kept is the candidate that runs free best on the training part
-    t, u, w = _wide_two_sided_log()
+    # a wide loop through zero warp behind 0.6 mm of play the model does not hold: the design's refined starts
+    # settle in different minima, so the global search runs; the fit kept is the candidate that runs free best
+    # on the training part
+    t, u, _ = _wide_two_sided_log()
+    w = forward(P, play(u, 0.6, float(u[0])))[0] + 0.05 * np.random.default_rng(4).standard_normal(u.size)
     res = identify(t, u, w)
     tr = res.trace
     assert res.two_sided
     assert tr.global_search and tr.global_generations > 0
     from_design, from_global = tr.global_train_rms
     assert tr.global_kept == (from_global < from_design)
-    assert tr.global_kept and from_global < 0.9 * from_design
     assert res.train_rms <= min(from_design, from_global) * (1 + 1e-9)  # later steps may only lower it
     assert res.fit_dict()["global_search"] is True
     assert res.train_rms < 1.5 * 0.05
+
+
+def test_a_wide_two_sided_loop_needs_no_global_search():
+    # the design's refined starts agree on the paper's wing through zero warp: the fit is at the noise without it
+    t, u, w = _wide_two_sided_log()
+    res = identify(t, u, w)
+    assert res.two_sided and not res.trace.global_search
+    assert res.train_rms < 1.05 * 0.05 and res.heldout_rms < 1.1 * 0.05
 
 
 def test_the_global_search_is_deterministic_for_a_seed():

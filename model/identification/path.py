@@ -226,7 +226,7 @@ def _resid_row(p, u, w, weight, offsets, w0, z0, budgets, tol, out) -> bool:
             if ok:
                 wn, zz, zn, st, taken = K._forward_solve(p, wp, zp, zn, u[i], budgets[j] - used, tol)
                 used += taken
-                if st != 0:
+                if st > 1:  # diverged or out of budget; saturated (1): held where the forward map holds it
                     ok = False
                 else:
                     wp = wn

@@ -206,9 +206,11 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         best = escalate(data, best, first, starts, seed, trace, search, progress)
     best = fold_check(data, best, starts, trace, search)
     best = simpler_models(data, best, starts, trace, search, progress)
-    if lag.active and lag_ratio > 1.0 - LAG_GAIN_SURE and not lag_checks(data, best.theta, lag):
-        trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s  # proposed, refused by the short refinement
-        lag = Servo()
+    if lag.active and lag_ratio > 1.0 - LAG_GAIN_SURE:
+        checked = lag_checks(data, best.theta, lag)
+        if not checked.active:
+            trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s  # proposed, refused by the short refinement
+        lag = checked
     if lag.active:  # the scan's servo: the design solved through it and refined, the model without it a start
         plain, data = data, data.with_servo(lag)
         kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}  # what the model without the lag did
