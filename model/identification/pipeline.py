@@ -221,8 +221,12 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         tuned = servo_tune(data, with_lag.theta, lag)
         if tuned != lag:  # the model refined again through the servo tuned on the forward error
             scanned, data = data, plain.with_servo(tuned)
-            th, d = search(with_lag.theta[None, :], ["servo tuned"], None, "lag")
-            again = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
+            # from the model through the scan's servo and from the design solved through the tuned one: a servo
+            # the scan placed far off (a cap without a lag) leaves a model no short refinement brings back
+            tuned_starts = linear_solve(data, S, labels, keep_starts)
+            th, d = search(np.vstack([with_lag.theta, tuned_starts.thetas]), ["servo tuned", *tuned_starts.labels],
+                           None, "lag")
+            again = fold_check(data, evaluate(data, th, d), tuned_starts, trace, search)
             if again.train_rms < with_lag.train_rms:
                 lag, with_lag = tuned, again
             else:
