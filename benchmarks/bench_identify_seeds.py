@@ -30,6 +30,7 @@ Run: python benchmarks/bench_identify_seeds.py --baseline REV [--seeds 10] [--ol
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import math
 import os
@@ -80,9 +81,12 @@ def other_rms(params: BoucWenParams, others: list[tuple[np.ndarray, np.ndarray]]
     return float(np.mean(out)) if out else math.nan
 
 
-def fit_once(ident, t, u, w, seed: int, others) -> dict:
+def fit_once(ident, t, u, w, seed: int, others, sent=None) -> dict:
+    """One identification with a user's defaults; the cycle log's send times when the log has them and the code
+    takes them."""
+    kw = {"sent": sent} if sent is not None and "sent" in inspect.signature(ident.identify).parameters else {}
     t0 = time.perf_counter()
-    r = ident.identify(t, u, w, seed=seed)
+    r = ident.identify(t, u, w, seed=seed, **kw)
     wall = time.perf_counter() - t0
     return {"seed": seed, "heldout_rms_deg": r.heldout_rms, "train_rms_deg": r.train_rms, "seconds": wall,
             "other_rms_deg": other_rms(r.params, others) if others else None, "params": r.params.to_dict(),
@@ -161,7 +165,7 @@ def sitl_logs(d: Path, seeds: tuple[int, ...] = SITL_SEEDS) -> list[dict]:
                 for wing in ("left", "right"):
                     data = read_log(d / f"{plant}-{sc}-s{seed}" / "bridge-cycles.csv", wing=wing)
                     out.append({"set": "sitl", "log": f"{plant} {sc} s{seed} {wing}", "plant": plant, "t": data.t,
-                                "u": data.u, "w": data.warp, "others": [], "bench": False})
+                                "u": data.u, "w": data.warp, "others": [], "bench": False, "sent": data.u_sent})
     return out
 
 
@@ -195,7 +199,8 @@ def main() -> None:
                     help="which code to run: new, old, both (default) or none (with --resume and --merge: only the "
                          "table of figures measured before)")
     ap.add_argument("--sitl-seeds", default="0,1", help="seeds of the SITL runs (default 0,1)")
-    ap.add_argument("--resume", help="a JSON of an earlier run of this benchmark: its logs are kept, not run again")
+    ap.add_argument("--resume", help="JSONs of earlier runs of this benchmark (comma-separated: parts run side by "
+                                     "side on the same code): their logs are kept, not run again")
     ap.add_argument("--merge", help="a JSON of this benchmark whose runs fill in the versions not run here "
                                     "(the old code's figures measured in an earlier run of the same logs)")
     args = ap.parse_args()
@@ -207,8 +212,9 @@ def main() -> None:
         versions["old"] = BI.load_baseline(args.baseline)
     sitl_seeds = tuple(int(x) for x in args.sitl_seeds.split(","))
     done = {}
-    if args.resume and Path(args.resume).exists():
-        done = {(r["set"], r["log"]): r for r in json.loads(Path(args.resume).read_text())["logs"]}
+    for part in args.resume.split(",") if args.resume else ():
+        if Path(part).exists():
+            done |= {(r["set"], r["log"]): r for r in json.loads(Path(part).read_text())["logs"]}
     merged = {}
     if args.merge:
         prev = json.loads(Path(args.merge).read_text())
@@ -272,7 +278,7 @@ def main() -> None:
             for key, ident in versions.items():  # interleaved: both see the same load
                 if seed < n[key]:
                     try:
-                        rec["runs"][key].append(fit_once(ident, t, u, w, seed, lg["others"]))
+                        rec["runs"][key].append(fit_once(ident, t, u, w, seed, lg["others"], lg.get("sent")))
                     except ValueError as e:
                         rec["runs"][key].append({"seed": seed, "error": str(e), "heldout_rms_deg": None,
                                                  "train_rms_deg": None, "seconds": None, "other_rms_deg": None})

@@ -565,6 +565,7 @@ class Bridge:
                     self._mode_ran[name] = cmd.mode
                 if self._servo_down_since is None and self.servo is not None:
                     self.servo.set_pulse(w.cfg.servo_channel, pulse)
+                    row["u_sent"] = self.clock() - t_read  # when the command left, for a model of the servo
             except DeviceError as e:
                 self._servo_lost(e)
             except Exception:  # noqa: BLE001

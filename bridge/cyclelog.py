@@ -5,7 +5,9 @@ servo between rows needs the sensor's time, not the cycle's start), ``mode, airs
 (left, right), ``<wing>_setpoint`` (deg), ``_ff`` (mm), ``_pi`` (mm), ``_u`` (mm, the tendon command), ``_warp``
 (deg, measured) and ``_pulse`` (us), then ``fc_t``: the FC's own time stamp (s since its boot;
 SERVO_OUTPUT_RAW ``time_usec``, 32 bits, wraps after 71.6 min) of the servo-output message the
-row's setpoints come from, by which ``warpbridge review`` joins this log to the FC's.
+row's setpoints come from, by which ``warpbridge review`` joins this log to the FC's; then per wing
+``<wing>_u_sent``: how long after ``t`` the wing's command was handed to the servo board (s; its sensor read,
+the control step and the write: a model of the servo holds the row before's command until then).
 Missing values are written as ``nan``.
 Rows are buffered in memory and written every ``flush_s`` seconds and on
 ``close()``, so a clean stop never loses a row. A ``{time}`` in the path is
@@ -24,7 +26,9 @@ log = logging.getLogger(__name__)
 
 WING_FIELDS = ("setpoint", "ff", "pi", "u", "warp", "pulse")
 WINGS = ("left", "right")
-COLUMNS = ("t", "mode", "airspeed") + tuple(f"{w}_{f}" for w in WINGS for f in WING_FIELDS) + ("fc_t",)
+SENT_FIELD = "u_sent"  # after fc_t (the columns before it keep their places)
+COLUMNS = ("t", "mode", "airspeed") + tuple(f"{w}_{f}" for w in WINGS for f in WING_FIELDS) + ("fc_t",) + tuple(
+    f"{w}_{SENT_FIELD}" for w in WINGS)
 
 
 def expand_path(path: str | Path, when: float | None = None) -> Path:
@@ -66,6 +70,7 @@ class CycleLog:
             vals = wings.get(w, {})
             cells.extend(_fmt(vals.get(f)) for f in WING_FIELDS)
         cells.append("nan" if fc_t is None or not math.isfinite(fc_t) else f"{fc_t:.6f}")
+        cells.extend(_fmt(wings.get(w, {}).get(SENT_FIELD)) for w in WINGS)
         self._rows.append(",".join(cells))
         now = self._clock()
         if now - self._last_flush >= self._flush_s:

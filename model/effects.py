@@ -507,6 +507,39 @@ def servo_follow(t, u, tau, rate, y0, deadband=0.0):
     return out
 
 
+@njit(cache=True)
+def servo_follow_sent(t, u, sent, tau, rate, y0, deadband=0.0):
+    """``servo_follow`` for commands that reach the servo ``sent[k]`` s after their row's time (the bridge's
+    cycle log records it: the sensor is read, the command computed and written): until then the row before's
+    command holds. ``sent`` is clipped to [0, the time to the next row]; where it is 0 the step is exactly
+    ``servo_follow``'s."""
+    n = t.shape[0]
+    out = np.empty(n)
+    y = y0
+    if n:
+        out[0] = y
+    half = 0.5 * deadband
+    prev = u[0]
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        d = sent[k - 1]
+        d = 0.0 if not d > 0.0 else min(d, dt)
+        if d > 0.0:
+            y = servo_move(y, prev, d, tau, rate, half)
+        y = servo_move(y, u[k - 1], dt - d, tau, rate, half)
+        prev = u[k - 1]
+        out[k] = y
+    return out
+
+
+def servo_travel(t, u, tau, rate, y0, deadband=0.0, sent=None):
+    """The servo's travel at each row (``servo_follow``; ``servo_follow_sent`` when the log says when each
+    command was sent)."""
+    if sent is None:
+        return servo_follow(t, u, tau, rate, y0, deadband)
+    return servo_follow_sent(t, u, np.ascontiguousarray(sent, dtype=np.float64), tau, rate, y0, deadband)
+
+
 def sensor_filtered(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The warp sensor's lag (one or two first-order stages in cascade), each starting settled on w[0]."""
     y = np.ascontiguousarray(w, dtype=np.float64)
@@ -515,14 +548,16 @@ def sensor_filtered(eff: Effects, t: np.ndarray, w: np.ndarray) -> np.ndarray:
     return y
 
 
-def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: float = PULLED) -> np.ndarray:
+def apply_input_effects(eff: Effects, t: np.ndarray, u: np.ndarray, slack_side: float = PULLED,
+                        sent: np.ndarray | None = None) -> np.ndarray:
     """Tendon travel the sheath actually sees for command u (delay, servo lag, rate limit, backlash and capstan
-    stall), the play starting on the edge ``slack_side`` names (``slack_start``)."""
+    stall), the play starting on the edge ``slack_side`` names (``slack_start``); ``sent``: when each command
+    reached the servo, s after its row (``servo_travel``; None: at the row's time)."""
     x = np.ascontiguousarray(u, dtype=np.float64)
     if eff.delay_s > 0:
         x = delayed(t, x, eff.delay_s)
     if eff.has_servo:
-        x = servo_follow(t, x, eff.servo_tau_s, eff.servo_rate_mm_s, float(x[0]), eff.servo_deadband_mm)
+        x = servo_travel(t, x, eff.servo_tau_s, eff.servo_rate_mm_s, float(x[0]), eff.servo_deadband_mm, sent)
     if math.isfinite(eff.rate_mm_s):
         x = rate_limited(t, x, eff.rate_mm_s, float(x[0]))
     if eff.has_slack:

@@ -579,16 +579,17 @@ def _guarded(fold: np.ndarray, n: int, t: np.ndarray, guard_s: float = 0.5) -> n
     return np.arange(lo, min(hi, n))
 
 
-def bench_error_model(params, effects, t, u, w) -> ErrorModel:
+def bench_error_model(params, effects, t, u, w, sent=None) -> ErrorModel:
     """The model-error model of a nominal model (Bouc-Wen ``params`` with ``effects``) on its bench log.
 
     The model is free-run on the logged input from the initial state its opening stretch gives; samples up
-    to the first reversal (capped at a tenth of the log) are left out, as in identification."""
+    to the first reversal (capped at a tenth of the log) are left out, as in identification. ``sent``: when
+    each command reached the servo, s after its row (``effects.servo_travel``)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
     p = core_params(params, effects)
-    x = apply_input_effects(effects, t, u)
+    x = apply_input_effects(effects, t, u, sent=sent)
     z0 = estimate_z0(p, x, w)
     w_core = forward(p, x, z0=z0)[0]
     _, w_pred = apply_output_effects(effects, t, w_core)

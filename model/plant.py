@@ -43,15 +43,16 @@ class Plant:
         """Bouc-Wen parameters with pre-tension and friction folded in (``model.effects.core_params``)."""
         return core_params(self.params, self.effects)
 
-    def simulate(self, t, u, airspeed=None, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """(w_true, w_meas) in deg for tendon command u (mm) sampled at times t (s)."""
+    def simulate(self, t, u, airspeed=None, z0: float = 0.0, sent=None) -> tuple[np.ndarray, np.ndarray]:
+        """(w_true, w_meas) in deg for tendon command u (mm) sampled at times t (s); ``sent``: when each command
+        reached the servo, s after its row (``effects.servo_travel``; None: at the row's time)."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         u = np.ascontiguousarray(u, dtype=np.float64)
         if t.shape != u.shape:
             raise ValueError("t and u must have the same length")
         if t.size == 0:
             return np.empty(0), np.empty(0)
-        x = apply_input_effects(self.effects, t, u, self.slack_side)
+        x = apply_input_effects(self.effects, t, u, self.slack_side, sent)
         w, _, _ = forward(self.core_params(), x, z0=z0)
         if self.error_model is not None:
             w = self.error_model.corrected(t, x, w, self.effects.band_scale)

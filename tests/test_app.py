@@ -121,6 +121,12 @@ def test_pulses_follow_aileron_failsafe_neutralises_and_recovers(tmp_path):
     assert not bridge.is_alive()
     rows = read_log(tmp_path)
     assert result["r"].cycles == len(rows)  # a clean stop loses no row
+    # each wing's command left within its cycle: after the read, before the next cycle's
+    t = [float(r["t"]) for r in rows]
+    for w in ("left", "right"):
+        sent = [float(r[f"{w}_u_sent"]) for r in rows]
+        assert all(s >= 0 for s in sent)
+        assert all(s <= b - a for s, a, b in zip(sent, t, t[1:], strict=False))
     phase = []  # the sequence of distinct (mode, left setpoint, right setpoint)
     for r in rows:
         key = (r["mode"], r["left_setpoint"], r["right_setpoint"])

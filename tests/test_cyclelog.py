@@ -77,3 +77,24 @@ def test_loop_timer_skips_missed_ticks_and_counts_overruns():
 def test_loop_timer_rejects_bad_rate():
     with pytest.raises(ValueError):
         LoopTimer(0)
+
+
+def test_the_send_times_go_in_the_last_columns_and_come_back_as_the_logs_u_sent(tmp_path):
+    from warpbridge.bridge.commands.logfile import read_log
+
+    clock = FakeClock()
+    log = CycleLog(tmp_path / "c.csv", clock=clock)
+    for k in range(60):
+        sent = None if k == 7 else 0.001 * (k % 4)  # a row whose command did not go out (servo down)
+        log.write(0.01 * k, "ff+pi", None, {"left": {"u": 3.0 + 0.01 * k, "warp": 4.0, "u_sent": sent},
+                                            "right": {"u": 2.0, "warp": 3.0, "u_sent": 0.002}})
+    log.close()
+    header = log.path.read_text().splitlines()[0].split(",")
+    assert header[-3:] == ["fc_t", "left_u_sent", "right_u_sent"]  # the older columns keep their places
+    left = read_log(log.path, wing="left")
+    assert left.u_sent is not None and left.u_sent[3] == pytest.approx(0.003)
+    assert left.u_sent[7] == 0.0 and any("send time" in n for n in left.notes)
+    assert read_log(log.path, wing="right").u_sent == pytest.approx(0.002)
+    plain = tmp_path / "plain.csv"
+    plain.write_text("t,u,warp\n" + "".join(f"{0.01 * k},{3 + 0.01 * k},4\n" for k in range(60)))
+    assert read_log(plain).u_sent is None  # a log without them: each command held from its row's time

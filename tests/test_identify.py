@@ -573,3 +573,32 @@ def test_the_global_search_is_deterministic_for_a_seed():
     b = global_search(obj, lo, hi, seeded, 3, popsize=20, maxiter=5)
     assert np.array_equal(a.thetas, b.thetas) and np.array_equal(a.costs, b.costs)
     assert np.all(np.diff(a.costs) >= 0) and a.costs[0] <= obj.one(seeded[0])  # the seeded start is in it
+
+
+def test_the_logged_send_times_put_the_servo_where_it_was_on_a_fast_closed_loop_log():
+    """A loaded loop writes each command 0-4 ms after its sensor read; on a fast sweep the servo moves enough
+    in that time that a model holding each command from its row's time misses by more than the noise. Given
+    the send times (the cycle log's ``<wing>_u_sent``), identify reaches the noise (0.03 deg)."""
+    from warpbridge.sitl.servo_model import ServoModel, ServoSpec
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.008, 0.012, 2000))  # 20 s of a 100 Hz loop's uneven cycles
+    f = 0.3 + 2.7 * (t - t[0]) / (t[-1] - t[0])  # a sweep from 0.3 to 3 Hz
+    phase = 2 * np.pi * np.cumsum(np.r_[0.0, f[:-1] * np.diff(t)])
+    u = 4.5 + 2.0 * np.sin(phase) + 0.5 * np.sin(2.3 * phase)
+    sent = rng.uniform(0.0, 0.004, t.size)
+    spec = ServoSpec(deadband_us=0.0, quantum_us=0.0, tau_s=0.02, s_per_60deg=0.01)  # 20 ms, no cap reached
+    servo = ServoModel(spec, t0=t[0], pulse0_us=spec.pulse_of(u[0]))
+    x = [servo.mm]
+    for k in range(1, t.size):  # the SITL's servo in substeps: the row before's command holds until the send
+        for tk in np.linspace(t[k - 1], t[k - 1] + sent[k - 1], 5)[1:]:
+            servo.step(tk, spec.pulse_of(u[k - 2] if k > 1 else u[0]))
+        for tk in np.linspace(t[k - 1] + sent[k - 1], t[k], 21)[1:]:
+            servo.step(tk, spec.pulse_of(u[k - 1]))
+        x.append(servo.mm)
+    _, w = noisy_log(np.array(x), 8, noise=0.03)
+    res = identify(t, u, w, maxiter=60, sent=sent)
+    assert res.servo_tau_s == pytest.approx(0.02, abs=0.005)
+    assert res.heldout_rms < 1.15 * 0.03
+    at_rows = identify(t, u, w, maxiter=60)
+    assert at_rows.heldout_rms > 1.4 * res.heldout_rms

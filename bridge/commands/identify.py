@@ -147,7 +147,7 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         res = identify(data.t, data.u, data.warp, heldout_frac=args.heldout, seed=args.seed, maxiter=args.maxiter,
-                       max_delay_s=args.max_delay, max_lag_s=args.max_lag, progress=progress)
+                       max_delay_s=args.max_delay, max_lag_s=args.max_lag, sent=data.u_sent, progress=progress)
     except ValueError as e:
         raise UserError(f"{args.log}: {e}") from None
     finally:
@@ -260,7 +260,7 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
 def bench_model_error(mf: ModelFile, data) -> ErrorModel | None:
     """What the identified model still gets wrong on this (bench) log, learned for ``diagnose``."""
     try:
-        return bench_error_model(mf.params, mf.effects, data.t, data.u, data.warp)
+        return bench_error_model(mf.params, mf.effects, data.t, data.u, data.warp, getattr(data, "u_sent", None))
     except (ValueError, np.linalg.LinAlgError) as e:
         print(f"note: no model-error model: {e}", file=sys.stderr)
         return None

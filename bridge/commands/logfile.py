@@ -1,4 +1,7 @@
-"""Reading logs (CSV ``t,u,warp[,airspeed]``, the bridge's own, or the FC's) and writing files atomically.
+"""Reading logs (CSV ``t,u,warp[,airspeed][,u_sent]``, the bridge's own, or the FC's) and writing files atomically.
+
+``u_sent`` (s, optional) says how long after the row's ``t`` its command reached the servo; the bridge's cycle
+log records it per wing (``<wing>_u_sent``). A model with a servo holds the row before's command until then.
 
 A flight controller's log (ArduPilot ``.BIN``, a ground station's ``.tlog``, PX4 ``.ulg``; read by
 ``fclog``) is taken wherever a CSV is, with ``--wing``: the bridge's named values as the FC logged them,
@@ -49,17 +52,19 @@ class LogData:
     rows_dropped: int = 0
     rows_merged: int = 0
     notes: list[str] = field(default_factory=list)
+    u_sent: np.ndarray | None = None  # how long after each row's t its command reached the servo (s), if logged
 
     def __len__(self) -> int:
         return int(self.t.size)
 
 
-def _columns_for(wing: str | None) -> tuple[str, str]:
+def _columns_for(wing: str | None) -> tuple[str, str, str]:
+    """(u, warp, u_sent) column names of a plain log or of one wing of the bridge's cycle log."""
     if wing is None:
-        return "u", "warp"
+        return "u", "warp", "u_sent"
     if wing not in ("left", "right"):
         raise UserError(f"--wing must be left or right (got {wing!r})")
-    return f"{wing}_u", f"{wing}_warp"
+    return f"{wing}_u", f"{wing}_warp", f"{wing}_u_sent"
 
 
 def _number(cell: str, row: int, col: str) -> float:
@@ -76,7 +81,7 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
              min_rows: int = 50) -> LogData:
     """Read and clean a log; raises UserError with a one-line reason when it cannot be used."""
     p = Path(path)
-    ucol, wcol = _columns_for(wing)
+    ucol, wcol, scol = _columns_for(wing)
     if p.suffix.lower() in (".bin", ".tlog", ".ulg"):
         return read_fc_named_values(p, wing, require_warp, min_rows)
     try:
@@ -100,25 +105,28 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
             it, iu = names.index("t"), names.index(ucol)
             iw = names.index(wcol) if wcol in names else None
             ia = names.index("airspeed") if "airspeed" in names else None
-            t, u, w, a = [], [], [], []
+            isent = names.index(scol) if scol in names else None
+            t, u, w, a, sent = [], [], [], [], []
             rows = 0
             for lineno, row in enumerate(reader, start=2):
                 if not row or all(not c.strip() for c in row):
                     continue
                 rows += 1
-                need = max(i for i in (it, iu, iw, ia) if i is not None)
+                need = max(i for i in (it, iu, iw, ia, isent) if i is not None)
                 if len(row) <= need:
                     raise UserError(f"row {lineno}: {len(row)} cells, expected {len(names)}")
                 t.append(_number(row[it], lineno, "t"))
                 u.append(_number(row[iu], lineno, ucol))
                 w.append(_number(row[iw], lineno, wcol) if iw is not None else math.nan)
                 a.append(_number(row[ia], lineno, "airspeed") if ia is not None else math.nan)
+                sent.append(_number(row[isent], lineno, scol) if isent is not None else math.nan)
         except UnicodeDecodeError:
             raise UserError(f"{p}: not a text CSV file") from None
         except csv.Error as e:
             raise UserError(f"{p}: malformed CSV ({e})") from None
     return clean(np.array(t), np.array(u), np.array(w) if iw is not None else None,
-                 np.array(a) if ia is not None else None, str(p), rows, require_warp, min_rows)
+                 np.array(a) if ia is not None else None, str(p), rows, require_warp, min_rows,
+                 np.array(sent) if isent is not None else None)
 
 
 def read_fc_named_values(p: Path, wing: str | None, require_warp: bool = True, min_rows: int = 50) -> LogData:
@@ -155,8 +163,10 @@ def read_fc_named_values(p: Path, wing: str | None, require_warp: bool = True, m
     return data
 
 
-def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows: int = 50) -> LogData:
-    """Drop non-finite rows, merge repeated timestamps (keep the last), refuse time running backwards."""
+def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows: int = 50,
+          sent=None) -> LogData:
+    """Drop non-finite rows, merge repeated timestamps (keep the last), refuse time running backwards. A
+    ``sent`` column that is missing (nan) in some rows counts as sent at the row's time there."""
     notes: list[str] = []
     ok = np.isfinite(t) & np.isfinite(u)
     if w is not None and require_warp:
@@ -170,6 +180,7 @@ def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows:
     t, u = t[ok], u[ok]
     w = w[ok] if w is not None else None
     a = a[ok] if a is not None else None
+    sent = sent[ok] if sent is not None else None
     if t.size:
         back = np.flatnonzero(np.diff(t) < 0)
         if back.size:
@@ -186,6 +197,7 @@ def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows:
     t, u = t[last], u[last]
     w = w[last] if w is not None else None
     a = a[last] if a is not None else None
+    sent = sent[last] if sent is not None else None
     if t.size < min_rows:
         raise UserError(f"{path}: log too short ({t.size} usable rows, need at least {min_rows})")
     if a is not None:
@@ -202,10 +214,18 @@ def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows:
         gaps = int((dt > 10 * med).sum())
         if gaps:
             notes.append(f"{gaps} gaps longer than 10 sample periods")
+    if sent is not None:
+        fin = np.isfinite(sent) & (sent >= 0)
+        if not fin.any():
+            sent = None
+        else:
+            if not fin.all():
+                notes.append(f"{int((~fin).sum())} rows without a valid command send time (taken as sent at once)")
+            sent = np.where(fin, sent, 0.0)
     for n in notes:
         log.info("%s: %s", path, n)
     return LogData(t=t, u=u, warp=w, airspeed=a, path=path, rows_read=rows, rows_dropped=dropped,
-                   rows_merged=merged, notes=notes)
+                   rows_merged=merged, notes=notes, u_sent=sent)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

@@ -85,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
     else:
         z0 = mf.z0
         z0_note = f"initial state z0 = {z0:.4g} from the model file (no measured warp to estimate it from)"
-    _, w_pred = plant.simulate(data.t, data.u, data.airspeed, z0=z0)
+    _, w_pred = plant.simulate(data.t, data.u, data.airspeed, z0=z0, sent=data.u_sent)
     write_csv_atomic(args.output, {"t": data.t, "warp_pred": w_pred})
     print(f"wrote {args.output}: {len(data)} predictions; {z0_note}; {em_note}")
     if has_warp:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from warpbridge.model.effects import servo_follow
+from warpbridge.model.effects import servo_travel
 from warpbridge.model.identification.space import BOUNDS_ONE_SIDED, BOUNDS_TWO_SIDED, Normaliser
 from warpbridge.model.signals import central_range, noise_floor, reversal_indices
 
@@ -49,11 +49,12 @@ class Servo:
         """How many parameters it adds to the model (for the information criterion)."""
         return int(self.tau_s > 0) + int(math.isfinite(self.rate_mm_s)) + int(self.deadband_mm > 0)
 
-    def apply(self, t: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The tendon travel the servo gives for commands u (u itself when inactive)."""
+    def apply(self, t: np.ndarray, u: np.ndarray, sent: np.ndarray | None = None) -> np.ndarray:
+        """The tendon travel the servo gives for commands u (u itself when inactive); ``sent``: when each
+        command reached it, s after its row (None: at the row's time)."""
         if not self.active:
             return u
-        return servo_follow(t, u, self.tau_s, self.rate_mm_s, float(u[0]), self.deadband_mm)
+        return servo_travel(t, u, self.tau_s, self.rate_mm_s, float(u[0]), self.deadband_mm, sent)
 
     def __str__(self) -> str:
         lag = f"{1e3 * self.tau_s:.1f} ms"
@@ -81,6 +82,7 @@ class LogData:
     servo: Servo = Servo()  # the servo the model's input passes through (``lag_scan``)
     x: np.ndarray | None = field(default=None, repr=False)  # the input the model sees: u through the servo (mm)
     x_hat: np.ndarray | None = field(default=None, repr=False)  # ... normalised
+    sent: np.ndarray | None = field(default=None, repr=False)  # when each command reached the servo (s after t)
 
     def __post_init__(self) -> None:
         if self.x is None:
@@ -88,7 +90,7 @@ class LogData:
 
     def with_servo(self, servo: Servo) -> LogData:
         """The same log with the model's input passed through ``servo``."""
-        x = servo.apply(self.t, self.u)
+        x = servo.apply(self.t, self.u, self.sent)
         return replace(self, servo=servo, x=x, x_hat=(x - self.norm.uc) / self.norm.us)
 
     @property
@@ -103,12 +105,18 @@ class LogData:
         return np.array([x[0] for x in b]), np.array([x[1] for x in b])
 
 
-def read(t, u, w, heldout_frac: float) -> LogData:
-    """Step 1: the log's arrays checked, normalised and split (the last ``heldout_frac`` by time held out)."""
+def read(t, u, w, heldout_frac: float, sent=None) -> LogData:
+    """Step 1: the log's arrays checked, normalised and split (the last ``heldout_frac`` by time held out);
+    ``sent``: when each row's command reached the servo, s after the row (None: at the row's time)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
     check_log(t, u, w)
+    if sent is not None:
+        sent = np.ascontiguousarray(sent, dtype=np.float64)
+        if sent.shape != t.shape:
+            raise ValueError("sent must have one value per row")
+        sent = np.where(np.isfinite(sent), np.maximum(sent, 0.0), 0.0)
     if not 0.05 <= heldout_frac <= 0.5:
         raise ValueError("heldout_frac must lie in [0.05, 0.5]")
     norm = Normaliser.from_data(u, w)
@@ -119,4 +127,4 @@ def read(t, u, w, heldout_frac: float) -> LogData:
     train = np.zeros(n, bool)
     train[:n_end] = True
     return LogData(t, u, w, norm, (u - norm.uc) / norm.us, w / norm.ws, two_sided, n_end, split_time, train, ~train,
-                   noise_floor(w))
+                   noise_floor(w), sent=sent)

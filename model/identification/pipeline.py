@@ -132,7 +132,7 @@ LAG_PASS_FIELDS = ("fold_deg", "working_range_deg", "fold_outcome", "fold_train_
 def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int = 10, maxiter: int = 150,
              polish_evals: int = 2500, max_fit_points: int = 2500,
              prior: BoucWenParams | None = None, max_delay_s: float = 0.0, max_lag_s: float = LAG_GRID_S[-1],
-             progress: Callable[[str, int, int], None] | None = None) -> IdentResult:
+             sent=None, progress: Callable[[str, int, int], None] | None = None) -> IdentResult:
     """Identify the Bouc-Wen model (warp -> tendon) from a log by forward output error (see the module).
 
     ``t`` s, ``u`` mm, ``w`` deg, cleaned (finite, t strictly increasing). The last ``heldout_frac`` of the log
@@ -141,9 +141,11 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     the forward error; each refinement takes at most ``maxiter`` Gauss-Newton steps and ``polish_evals``
     evaluations; ``prior`` (default: the paper's parameters) adds its shape to the design. ``max_lag_s`` bounds
     the servo lag the scan tries in front of the model (0: none), ``max_delay_s`` the transport delay (with a
-    delay scan no lag is scanned: the delay stands for the servo, link and sensor lag together).
-    ``progress(stage, i, n)`` is called once per refinement step."""
-    data = read(t, u, w, heldout_frac)
+    delay scan no lag is scanned: the delay stands for the servo, link and sensor lag together). ``sent``: when
+    each row's command reached the servo, s after the row's time (a cycle log records it; the servo in front of
+    the model then holds the row before's command until then). ``progress(stage, i, n)`` is called once per
+    refinement step."""
+    data = read(t, u, w, heldout_frac, sent)
     n_end = data.n_train_end
     exc = excitation_check(data.u[:n_end], data.w[:n_end], data.noise)
     trace = SearchTrace()

@@ -32,9 +32,9 @@ LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves
 # speed caps the scan tries, per the fastest the lagged command asks for: a servo crosses a large jump of the
 # command at its rated speed (a hobby servo's 0.1 s per 60 deg on a 10 mm horn is about 100 mm/s of tendon)
 RATE_FRACTIONS = (0.7, 0.5, 0.35, 0.25, 0.18, 0.12)
+CHECK_LAG_SCALES = (1.0, 0.5, 0.7, 1.4)  # the scan's lag scaled by these in ``lag_checks``
 # the servo tuned on the forward error (``servo_tune``): lags, speed caps (per the scan's) and dead bands (per the
 # command's central range: a hobby servo's 1-8 us of pulse is 0.016-0.13 mm of tendon on a 10 mm horn) tried
-CHECK_LAG_SCALES = (1.0, 0.5, 0.7, 1.4)  # the scan's lag scaled by these in ``lag_checks``
 TUNE_LAGS_S = (0.005, 0.01, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05, 0.065, 0.08)
 TUNE_RATE_FACTORS = (0.7, 0.85, 1.0, 1.2, 1.45)
 TUNE_DEADBANDS = (0.0, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032)
@@ -168,7 +168,7 @@ def lag_checks(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
         return refine(obj, theta, lo, hi, DELAY_SCAN_ITER, tol=FIT_TOL_Z).cost
 
     none = cost(data.x_hat)
-    tried = [replace(servo, tau_s=f * servo.tau_s) for f in CHECK_LAG_SCALES]
+    tried = list(dict.fromkeys(replace(servo, tau_s=f * servo.tau_s) for f in CHECK_LAG_SCALES))  # a cap alone: once
     costs = [cost(data.with_servo(sv).x_hat) for sv in tried]
     k = int(np.argmin(costs))
     log.info("servo %s, a short refinement: cost %.4g without it, %.4g with %s", servo, none, costs[k], tried[k])
