@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import tempfile
 import time
@@ -90,7 +91,8 @@ def main() -> None:
     if args.model is None:
         print(f"recording the bench log and identifying it in {out} ...", file=sys.stderr, flush=True)
         model = identify_bench(bench, out, max_delay=args.max_delay)
-        ident = (out / "identify.txt").read_text(encoding="utf-8").strip()
+        # the folder is this machine's: the stored text names the files only
+        ident = (out / "identify.txt").read_text(encoding="utf-8").strip().replace(f"{out}{os.sep}", "")
     else:
         model, ident = args.model, f"model given: {args.model}"
     print(f"bench wing: sheath {bench}\nflown wing: pre-tension x{PRETENSION_CHANGE:g} "
