@@ -383,16 +383,6 @@ def test_a_servos_dead_band_is_found_where_it_stops_short_of_each_step():
     assert res.fit_dict()["servo_deadband_mm"] == res.servo_deadband_mm
 
 
-def test_a_servo_with_both_a_cap_and_a_dead_band_is_found_with_both():
-    t = T[: T.size // 2]
-    u = stepped_command(t, 5)  # a slow servo (40 mm/s) that also stops a small band (0.05 mm) short of each step
-    _, w = noisy_log(servo_follow(t, u, 0.02, 40.0, float(u[0]), 0.05), 6)
-    res = identify(t, u, w, maxiter=60)
-    # one coordinate at a time the tuning keeps the cap and drops the band (0.057 deg held out); moved together
-    assert res.servo_rate_mm_s == pytest.approx(40.0, rel=0.15) and res.servo_deadband_mm > 0.01
-    assert res.heldout_rms < 1.05 * res.noise
-
-
 def test_no_servo_lag_is_kept_where_the_tendon_follows_the_command(fitted):
     _, _, res = fitted  # a smooth random input and no lag: the scan finds nothing worth its parameter
     assert res.servo_tau_s == 0.0
@@ -611,4 +601,4 @@ def test_the_logged_send_times_put_the_servo_where_it_was_on_a_fast_closed_loop_
     assert res.servo_tau_s == pytest.approx(0.02, abs=0.005)
     assert res.heldout_rms < 1.15 * 0.03
     at_rows = identify(t, u, w, maxiter=60)
-    assert at_rows.heldout_rms > 1.25 * res.heldout_rms  # a servo tuned without them makes up only part of it
+    assert at_rows.heldout_rms > 1.4 * res.heldout_rms

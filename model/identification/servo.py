@@ -12,7 +12,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import minimize
 
 from warpbridge.model.identification.data import LogData, Servo
 from warpbridge.model.identification.delay import DELAY_GAIN, DELAY_SCAN_ITER, parabola_vertex
@@ -44,14 +43,6 @@ TUNE_PASSES = 2  # passes over the three coordinates (the second only when the f
 # a coordinate moves only when the training RMS falls by this share: no dead band from the noise (a 0.15 mm band
 # behind a 20 ms servo lowers a 20 s stepped log's by 1 %, refined 8 steps; an optimiser's own scatter is far less)
 TUNE_GAIN = 0.005
-# then all three at once (``joint_tune``): a cap alone or a band alone can fit worse than neither where both
-# together fit at the noise (the SITL's 20 ms, 105 mm/s, 31 um servo on a stepped closed-loop log: 0.217 and 0.529
-# deg against 0.196 without, 0.037 with both), which no move of one coordinate reaches. A Nelder-Mead simplex over
-# the logarithms of lag, cap and band from the coordinate result, at most this many servos tried ...
-JOINT_EVALS = 40
-JOINT_STEPS = (0.3, 0.3, 0.7)  # ... its first simplex this far along each logarithm
-JOINT_RATE_FRACTION = 0.35  # a servo without a cap starts the simplex at this share of the fastest asked for ...
-JOINT_DEADBAND = 0.004  # ... and one without a band at this share of the command's central range
 
 
 def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, float]:
@@ -128,13 +119,17 @@ def servo_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
     cost the scan uses cannot judge a dead band, which moves the tendon by less than the warp's noise is worth
     in travel, nor tell a lag from a cap; nor can the search's stretches, each started from the state its own
     first samples imply: the tendon's whole path through the model can. A coordinate moves to its grid's best
-    value, and only when that improves the fit by ``TUNE_GAIN``; then the three are moved together
-    (``joint_tune``). Returns the servo that fits best."""
+    value, and only when that improves the fit by ``TUNE_GAIN``. Returns the servo that fits best."""
+    lo, hi = data.bounds
     tried: dict[Servo, tuple[float, np.ndarray]] = {}
 
     def rms(sv: Servo, start: np.ndarray) -> float:
         if sv not in tried:
-            tried[sv] = short_fit(data, sv, start)
+            d = data.with_servo(sv)
+            obj = Objective(FitPath.build(d.x_hat, d.w_hat, d.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS),
+                            d.norm.c)
+            th = refine(obj, start, lo, hi, TUNE_ITER, tol=FIT_TOL_Z).theta
+            tried[sv] = (evaluate(d, th, 0.0).train_rms, th)
         return tried[sv][0]
 
     best, start = servo, theta
@@ -157,51 +152,8 @@ def servo_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
             start = tried[best][1]
         if not moved:
             break
-    joint = joint_tune(data, theta, best)
-    log.info("servo tuned on the forward error: %s (from %s; %d servos tried, then %s together)", joint, servo,
-             len(tried), "moved" if joint != best else "none moved")
-    return joint
-
-
-def short_fit(data: LogData, sv: Servo, start: np.ndarray) -> tuple[float, np.ndarray]:
-    """(training RMS of the model run free, its search vector) after a short refinement (``TUNE_ITER`` steps on
-    the search's path) of ``start`` through the servo ``sv``."""
-    lo, hi = data.bounds
-    d = data.with_servo(sv)
-    obj = Objective(FitPath.build(d.x_hat, d.w_hat, d.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS), d.norm.c)
-    th = refine(obj, start, lo, hi, TUNE_ITER, tol=FIT_TOL_Z).theta
-    return evaluate(d, th, 0.0).train_rms, th
-
-
-def joint_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
-    """The coordinate result's lag, cap and dead band moved together: a Nelder-Mead simplex over their
-    logarithms (at most ``JOINT_EVALS`` servos, each judged like ``servo_tune``'s from ``theta``), started
-    from ``servo`` (a cap at ``JOINT_RATE_FRACTION`` of the fastest the command asks for where it has none, a
-    band of ``JOINT_DEADBAND`` of the command's range likewise). Kept when it fits by ``TUNE_GAIN`` better
-    than ``servo`` judged the same way, else ``servo``."""
-    if servo.tau_s <= 0:
-        return servo
-    cache: dict[Servo, float] = {}
-
-    def rms(sv: Servo) -> float:
-        if sv not in cache:
-            cache[sv] = short_fit(data, sv, theta)[0]
-        return cache[sv]
-
-    def servo_of(v: np.ndarray) -> Servo:
-        return Servo(float(math.exp(v[0])), float(math.exp(v[1])), float(math.exp(v[2])))
-
-    rate = servo.rate_mm_s if math.isfinite(servo.rate_mm_s) else JOINT_RATE_FRACTION * fastest_rate(data,
-                                                                                                        servo.tau_s)
-    band = servo.deadband_mm if servo.deadband_mm > 0 else JOINT_DEADBAND * data.travel_span
-    if not (rate > 0 and band > 0):
-        return servo
-    x0 = np.log([servo.tau_s, rate, band])
-    simplex = np.vstack([x0, x0 + np.diag(JOINT_STEPS)])
-    res = minimize(lambda v: rms(servo_of(v)), x0, method="Nelder-Mead",
-                   options={"maxfev": JOINT_EVALS, "initial_simplex": simplex, "xatol": 0.02, "fatol": 1e-5})
-    moved = servo_of(res.x)
-    return moved if rms(moved) < (1.0 - TUNE_GAIN) * rms(servo) else servo
+    log.info("servo tuned on the forward error: %s (from %s; %d servos tried)", best, servo, len(tried))
+    return best
 
 
 def lag_checks(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
