@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from warpbridge.bridge.commands.logfile import read_log
+from warpbridge.bridge.commands.logfile import LogData, read_log
 from warpbridge.bridge.commands.modelio import save_model
 from warpbridge.bridge.commands.plots import plot_identification
 from warpbridge.bridge.errors import UserError
@@ -257,10 +257,10 @@ def score_check_log(mf: ModelFile, check, name: str) -> tuple[dict, list[str]]:
     return rec, lines
 
 
-def bench_model_error(mf: ModelFile, data) -> ErrorModel | None:
+def bench_model_error(mf: ModelFile, data: LogData) -> ErrorModel | None:
     """What the identified model still gets wrong on this (bench) log, learned for ``diagnose``."""
     try:
-        return bench_error_model(mf.params, mf.effects, data.t, data.u, data.warp, getattr(data, "u_sent", None))
+        return bench_error_model(mf.params, mf.effects, data.t, data.u, data.warp, data.u_sent)
     except (ValueError, np.linalg.LinAlgError) as e:
         print(f"note: no model-error model: {e}", file=sys.stderr)
         return None
