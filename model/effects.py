@@ -491,28 +491,11 @@ def servo_move(y, c, dt, tau, rate, half=0.0):
 
 
 @njit(cache=True)
-def servo_follow(t, u, tau, rate, y0, deadband=0.0):
-    """The servo's travel at each row for commands u (``servo_move``, dead band ``deadband`` wide). Each row's
-    command is held until the next row, and a row's measurement sees only the commands before it: the bridge
-    reads the sensor, then sets the servo, and any servo board holds a pulse until the next."""
-    n = t.shape[0]
-    out = np.empty(n)
-    y = y0
-    if n:
-        out[0] = y
-    half = 0.5 * deadband
-    for k in range(1, n):
-        y = servo_move(y, u[k - 1], t[k] - t[k - 1], tau, rate, half)
-        out[k] = y
-    return out
-
-
-@njit(cache=True)
 def servo_follow_sent(t, u, sent, tau, rate, y0, deadband=0.0):
-    """``servo_follow`` for commands that reach the servo ``sent[k]`` s after their row's time (the bridge's
-    cycle log records it: the sensor is read, the command computed and written): until then the row before's
-    command holds. ``sent`` is clipped to [0, the time to the next row]; where it is 0 the step is exactly
-    ``servo_follow``'s."""
+    """The servo's travel at each row for commands u (``servo_move``, dead band ``deadband`` wide) that reach it
+    ``sent[k]`` s after their row's time (the bridge's cycle log records it: the sensor is read, the command
+    computed and written): until then the row before's command holds, and after it the row's own until the next
+    row (any servo board holds a pulse until the next). ``sent`` is clipped to [0, the time to the next row]."""
     n = t.shape[0]
     out = np.empty(n)
     y = y0
@@ -530,6 +513,13 @@ def servo_follow_sent(t, u, sent, tau, rate, y0, deadband=0.0):
         prev = u[k - 1]
         out[k] = y
     return out
+
+
+@njit(cache=True)
+def servo_follow(t, u, tau, rate, y0, deadband=0.0):
+    """``servo_follow_sent`` with every command sent at its row's time: a row's measurement sees only the commands
+    before it (the bridge reads the sensor, then sets the servo)."""
+    return servo_follow_sent(t, u, np.zeros(t.shape[0]), tau, rate, y0, deadband)
 
 
 def servo_travel(t, u, tau, rate, y0, deadband=0.0, sent=None):

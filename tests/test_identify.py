@@ -383,6 +383,23 @@ def test_a_servos_dead_band_is_found_where_it_stops_short_of_each_step():
     assert res.fit_dict()["servo_deadband_mm"] == res.servo_deadband_mm
 
 
+def test_a_servos_lag_cap_and_band_are_found_together_on_the_bridges_stepped_log():
+    """The bridge's own cycle flying the SITL's wing on setpoint steps (lock-step): the servo's lag, rated speed
+    and dead band each fit worse alone than none there, so only a joint tuning reaches the noise (one coordinate
+    at a time settles near 25 ms, 115 mm/s and 0.2 mm, 1.2-1.6x the noise)."""
+    from warpbridge.sitl.lockstep import run_lockstep
+    from warpbridge.sitl.scenarios import make_scenario
+    from warpbridge.sitl.wing import WingSpec
+
+    run, _ = run_lockstep(make_scenario("steps", seed=0), seed=0)
+    servo = WingSpec().servo  # the truth: the SITL's servo
+    res = identify(run.t, run.u_cmd["left"], run.measured["left"])
+    assert res.heldout_rms < 1.15 * res.noise
+    assert res.servo_tau_s == pytest.approx(servo.tau_s, abs=0.003)
+    assert res.servo_rate_mm_s == pytest.approx(servo.max_speed_mm_s, rel=0.1)
+    assert res.servo_deadband_mm < 0.15  # the SITL's is 2 us of pulse, 0.03 mm
+
+
 def test_no_servo_lag_is_kept_where_the_tendon_follows_the_command(fitted):
     _, _, res = fitted  # a smooth random input and no lag: the scan finds nothing worth its parameter
     assert res.servo_tau_s == 0.0

@@ -208,10 +208,10 @@ def test_the_models_servo_is_the_simulated_servo_fed_the_same_held_commands(rate
 def test_the_models_servo_holds_the_row_befores_command_until_the_logged_send(rate_mm_s, deadband_us):
     """``effects.servo_travel`` with the cycle log's send times against the SITL's servo stepped in 0.05 ms
     substeps, each row's command set ``sent`` after the row's read (0-4 ms, as a loaded loop's writes); without
-    them the model's servo is off by what the servo moves in that time. Sent 0 is exactly ``servo_follow``."""
+    them the model's servo is off by what the servo moves in that time."""
     import math
 
-    from warpbridge.model.effects import servo_follow, servo_travel
+    from warpbridge.model.effects import servo_travel
     from warpbridge.sitl.servo_model import ServoModel, ServoSpec
 
     speed = 1e6 if math.isinf(rate_mm_s) else rate_mm_s
@@ -237,5 +237,3 @@ def test_the_models_servo_holds_the_row_befores_command_until_the_logged_send(ra
     err, err_read = np.sqrt(np.mean((x - truth) ** 2)), np.sqrt(np.mean((at_read - truth) ** 2))
     assert np.max(np.abs(x - truth)) < 0.01  # mm
     assert err < 0.1 * err_read  # the send times are what the servo followed
-    assert np.array_equal(servo_travel(t, u, 0.02, rate_mm_s, float(u[0]), band, np.zeros(t.size)),
-                          servo_follow(t, u, 0.02, rate_mm_s, float(u[0]), band))

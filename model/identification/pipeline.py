@@ -34,7 +34,8 @@ this package's modules (named in brackets where a step's name is not its module'
    without it fits better through it), is put in front of the model once the model without it is final
    (steps 5-8): the design is solved again through it and refined, with the model found without it as
    one more start, checked for a fold and against the simpler models; its dead band, lag and cap are then
-   tuned on the forward error (``servo.servo_tune``: the input-side cost cannot see a dead band) and the
+   tuned on the forward error, one at a time and then together (``servo.servo_tune``, ``servo.joint_tune``:
+   the input-side cost cannot see a dead band, and a cap or a band alone can fit worse than none) and the
    model refined again through the tuned servo when that fits better; the servo is kept only when
    the result fits the training part better by ``DELAY_GAIN`` and by what the information criterion asks
    of its parameters on the log's effective samples (``servo.lag_pays``; ``servo_tau_s``, ``servo_rate_mm_s``;
