@@ -383,15 +383,6 @@ def test_a_servos_dead_band_is_found_where_it_stops_short_of_each_step():
     assert res.fit_dict()["servo_deadband_mm"] == res.servo_deadband_mm
 
 
-def test_a_servo_the_input_side_scan_misses_is_tried_where_the_model_without_it_misses_the_log():
-    t = T[: T.size // 2]
-    u = stepped_command(t, 2)  # through this servo the design's input-side costs favour the raw command
-    _, w = noisy_log(servo_follow(t, u, 0.02, 100.0, float(u[0]), 0.03), 6)
-    res = identify(t, u, w, maxiter=60)
-    assert res.servo_tau_s == pytest.approx(0.02, abs=0.004)
-    assert res.heldout_rms < 1.5 * res.noise  # 17x the noise without a servo
-
-
 def test_a_servos_lag_cap_and_band_are_found_together_on_the_bridges_stepped_log():
     """The bridge's own cycle flying the SITL's wing on setpoint steps (lock-step): the servo's lag, rated speed
     and dead band each fit worse alone than none there, so only a joint tuning reaches the noise (one coordinate

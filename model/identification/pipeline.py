@@ -33,9 +33,7 @@ this package's modules (named in brackets where a step's name is not its module'
    input-side cost by ``LAG_GAIN_SURE`` (or by ``LAG_GAIN`` and a short refinement of the final model
    without it fits better through it), is put in front of the model once the model without it is final
    (steps 5-8): the design is solved again through it and refined, with the model found without it as
-   one more start, checked for a fold and against the simpler models (when the scan proposed none but the
-   model without a servo misses the training part by ``LAG_PROBE_NOISES`` noise deviations, a lag of
-   ``LAG_PROBE_S`` goes this way: the input-side cost can miss a servo); its dead band, lag and cap are then
+   one more start, checked for a fold and against the simpler models; its dead band, lag and cap are then
    tuned on the forward error, one at a time and then together (``servo.servo_tune``, ``servo.joint_tune``:
    the input-side cost cannot see a dead band, and a cap or a band alone can fit worse than none) and the
    model refined again through the tuned servo when that fits better; the servo is kept only when
@@ -108,7 +106,6 @@ from warpbridge.model.identification.result import IdentResult
 from warpbridge.model.identification.servo import (
     LAG_GAIN_SURE,
     LAG_GRID_S,
-    LAG_SHARE,
     lag_checks,
     lag_pays,
     lag_scan,
@@ -129,12 +126,6 @@ ESCALATE_NOISES = 5.0  # ... or when the first result's training RMS is above th
 GLOBAL_SEEDED = 10  # the design's best starts placed in its first population, beside the refined results
 POPSIZE_GLOBAL = 110  # its population (ten per parameter of a two-sided wing)
 MAXITER_GLOBAL = 150  # generations of the escalation's global search at most (``global_search``)
-# a servo is tried when the scan proposed none (or its short check refused it) but the model without one misses
-# the training part by more than this many noise deviations: through the true servo the design's best input-side
-# cost can exceed the raw command's (a stepped log through a 20 ms, 100 mm/s servo: 0.012 against 0.004), so the
-# scan misses it, and a short refinement from the model without a servo, settled in its own basin, misses it too
-LAG_PROBE_NOISES = 2.0
-LAG_PROBE_S = 0.02  # the servo tried then: a hobby servo's position loop (tuned on the forward error from there)
 # the search trace's record of the fold and simpler-model steps: the lag's pass writes its own, kept with it
 LAG_PASS_FIELDS = ("fold_deg", "working_range_deg", "fold_outcome", "fold_train_rms", "line_restart", "kept_start")
 
@@ -223,11 +214,6 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if not checked.active:
             trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s  # proposed, refused by the short refinement
         lag = checked
-    probe_fits = max_delay_s <= 0 and LAG_PROBE_S <= min(max_lag_s, LAG_SHARE * data.train_duration)
-    if not lag.active and probe_fits and best.train_rms > LAG_PROBE_NOISES * data.noise:
-        log.info("the model without a servo misses the training part by %.3g deg (noise %.3g): trying one",
-                 best.train_rms, data.noise)
-        lag = Servo(LAG_PROBE_S)
     if lag.active:  # the scan's servo: the design solved through it and refined, the model without it a start
         plain, data = data, data.with_servo(lag)
         kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}  # what the model without the lag did
