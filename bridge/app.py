@@ -550,7 +550,10 @@ class Bridge:
         for name, w in self.wings.items():
             row: dict[str, float | None] = {"setpoint": setpoints[name]}
             try:
+                t_ask = self.clock()
                 measured = self._measure(name, w, now)
+                if measured is not None:  # the read's middle: when in its round trip the sensor was sampled is unknown
+                    row["read"] = 0.5 * (t_ask + self.clock()) - t_read
                 sp = row["setpoint"] = self.tuning.setpoint(name, now, setpoints[name])  # calibration excitation
                 self.tuning.before_step(name)  # pre-tension estimate into the feed-forward
                 cmd = w.ctl.step(sp, self.tuning.measurement(name, measured), dt, airspeed=self.link.airspeed)

@@ -7,7 +7,10 @@ servo between rows needs the sensor's time, not the cycle's start), ``mode, airs
 SERVO_OUTPUT_RAW ``time_usec``, 32 bits, wraps after 71.6 min) of the servo-output message the
 row's setpoints come from, by which ``warpbridge review`` joins this log to the FC's; then per wing
 ``<wing>_u_sent``: how long after ``t`` the wing's command was handed to the servo board (s; its sensor read,
-the control step and the write: a model of the servo holds the row before's command until then).
+the control step and the write: a model of the servo holds the row before's command until then); then per
+wing ``<wing>_read``: how long after ``t`` its sensor was read (s; the middle of the request and the answer:
+the second wing's read waits for the first wing's whole step, and a loaded link's for a millisecond or more,
+which on a fast warp is worth more than the sensor's noise).
 Missing values are written as ``nan``.
 Rows are buffered in memory and written every ``flush_s`` seconds and on
 ``close()``, so a clean stop never loses a row. A ``{time}`` in the path is
@@ -27,8 +30,9 @@ log = logging.getLogger(__name__)
 WING_FIELDS = ("setpoint", "ff", "pi", "u", "warp", "pulse")
 WINGS = ("left", "right")
 SENT_FIELD = "u_sent"  # after fc_t (the columns before it keep their places)
+READ_FIELD = "read"  # after the send times (likewise)
 COLUMNS = ("t", "mode", "airspeed") + tuple(f"{w}_{f}" for w in WINGS for f in WING_FIELDS) + ("fc_t",) + tuple(
-    f"{w}_{SENT_FIELD}" for w in WINGS)
+    f"{w}_{f}" for f in (SENT_FIELD, READ_FIELD) for w in WINGS)
 
 
 def expand_path(path: str | Path, when: float | None = None) -> Path:
@@ -70,7 +74,7 @@ class CycleLog:
             vals = wings.get(w, {})
             cells.extend(_fmt(vals.get(f)) for f in WING_FIELDS)
         cells.append("nan" if fc_t is None or not math.isfinite(fc_t) else f"{fc_t:.6f}")
-        cells.extend(_fmt(wings.get(w, {}).get(SENT_FIELD)) for w in WINGS)
+        cells.extend(_fmt(wings.get(w, {}).get(f)) for f in (SENT_FIELD, READ_FIELD) for w in WINGS)
         self._rows.append(",".join(cells))
         now = self._clock()
         if now - self._last_flush >= self._flush_s:

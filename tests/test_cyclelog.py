@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 
+import numpy as np
 import pytest
 
 from warpbridge.bridge.cyclelog import COLUMNS, CycleLog
@@ -90,7 +91,7 @@ def test_the_send_times_go_in_the_last_columns_and_come_back_as_the_logs_u_sent(
                                             "right": {"u": 2.0, "warp": 3.0, "u_sent": 0.002}})
     log.close()
     header = log.path.read_text().splitlines()[0].split(",")
-    assert header[-3:] == ["fc_t", "left_u_sent", "right_u_sent"]  # the older columns keep their places
+    assert header[-5:] == ["fc_t", "left_u_sent", "right_u_sent", "left_read", "right_read"]  # older ones in place
     left = read_log(log.path, wing="left")
     assert left.u_sent is not None and left.u_sent[3] == pytest.approx(0.003)
     assert left.u_sent[7] == 0.0 and any("send time" in n for n in left.notes)
@@ -98,3 +99,26 @@ def test_the_send_times_go_in_the_last_columns_and_come_back_as_the_logs_u_sent(
     plain = tmp_path / "plain.csv"
     plain.write_text("t,u,warp\n" + "".join(f"{0.01 * k},{3 + 0.01 * k},4\n" for k in range(60)))
     assert read_log(plain).u_sent is None  # a log without them: each command held from its row's time
+
+
+def test_each_wings_rows_move_to_its_sensor_reads_and_its_send_times_with_them(tmp_path):
+    from warpbridge.bridge.commands.logfile import read_log
+
+    log = CycleLog(tmp_path / "c.csv", clock=FakeClock())
+    for k in range(60):  # the right wing is read after the left wing's whole step
+        log.write(0.01 * k, "ff+pi", None,
+                  {"left": {"u": 3.0, "warp": 4.0, "u_sent": 0.0008, "read": 0.0002},
+                   "right": {"u": 2.0, "warp": 3.0, "u_sent": 0.003, "read": None if k == 5 else 0.0021}})
+    log.close()
+    left, right = read_log(log.path, wing="left"), read_log(log.path, wing="right")
+    k = np.arange(60)
+    assert left.t == pytest.approx(0.01 * k + 0.0002) and left.read_shifted
+    assert left.u_sent == pytest.approx(0.0006)  # still counted from the row's (moved) time
+    assert right.t[5] == pytest.approx(0.05) and right.t[6] == pytest.approx(0.0621)  # a row without a read stays
+    assert right.u_sent[6] == pytest.approx(0.0009)
+    jumbled = tmp_path / "jumbled.csv"  # reads that would reorder rows: the rows keep their logged times
+    jumbled.write_text("t,u,warp,read\n" + "".join(f"{0.01 * k},{3 + 0.01 * k},4,{0.02 if k == 3 else 0}\n"
+                                                  for k in range(60)))
+    data = read_log(jumbled)
+    assert data.t == pytest.approx(0.01 * k) and not data.read_shifted
+    assert any("out of order" in n for n in data.notes)

@@ -378,3 +378,25 @@ def test_another_kind_of_sensor_fault_is_said_at_once_after_the_sensor_came_back
         assert r.count("out of range: ff only") == 1, r.texts
     finally:
         r.close()
+
+
+def test_the_cycle_log_says_when_each_wings_sensor_was_read(tmp_path):
+    """A sensor that takes 2 ms to answer: the row says the wing was read 1 ms after the row's time (the middle of
+    the round trip), its command sent after that; a wing with no sensor has no read."""
+    wing = Wing()
+    r = Rig(tmp_path, sensor_counts=wing.counts)
+    wing.bridge = r.bridge
+
+    def slow(channel: int) -> float | None:
+        r.clock.t += 0.002
+        return wing.counts(channel)
+
+    r.loop.counts = slow
+    try:
+        r.tick(50)
+        left, right = r.bridge.wings["left"].last, r.bridge.wings["right"].last
+        assert left["warp"] is not None and left["read"] == pytest.approx(0.001)
+        assert left["u_sent"] == pytest.approx(0.002)  # the clock moves only in the read here
+        assert "read" not in right
+    finally:
+        r.close()

@@ -1,7 +1,10 @@
-"""Reading logs (CSV ``t,u,warp[,airspeed][,u_sent]``, the bridge's own, or the FC's) and writing files atomically.
+"""Reading logs (CSV ``t,u,warp[,airspeed][,u_sent][,read]``, the bridge's own, or the FC's) and writing files
+atomically.
 
 ``u_sent`` (s, optional) says how long after the row's ``t`` its command reached the servo; the bridge's cycle
 log records it per wing (``<wing>_u_sent``). A model with a servo holds the row before's command until then.
+``read`` (s, optional; ``<wing>_read``) says how long after ``t`` the row's warp was read: each row is moved
+to its read (and its send time with it), unless that would put rows out of order.
 
 A flight controller's log (ArduPilot ``.BIN``, a ground station's ``.tlog``, PX4 ``.ulg``; read by
 ``fclog``) is taken wherever a CSV is, with ``--wing``: the bridge's named values as the FC logged them,
@@ -53,18 +56,19 @@ class LogData:
     rows_merged: int = 0
     notes: list[str] = field(default_factory=list)
     u_sent: np.ndarray | None = None  # how long after each row's t its command reached the servo (s), if logged
+    read_shifted: bool = False  # each row's t moved to its warp's read (the log's ``read`` column)
 
     def __len__(self) -> int:
         return int(self.t.size)
 
 
-def _columns_for(wing: str | None) -> tuple[str, str, str]:
-    """(u, warp, u_sent) column names of a plain log or of one wing of the bridge's cycle log."""
+def _columns_for(wing: str | None) -> tuple[str, str, str, str]:
+    """(u, warp, u_sent, read) column names of a plain log or of one wing of the bridge's cycle log."""
     if wing is None:
-        return "u", "warp", "u_sent"
+        return "u", "warp", "u_sent", "read"
     if wing not in ("left", "right"):
         raise UserError(f"--wing must be left or right (got {wing!r})")
-    return f"{wing}_u", f"{wing}_warp", f"{wing}_u_sent"
+    return f"{wing}_u", f"{wing}_warp", f"{wing}_u_sent", f"{wing}_read"
 
 
 def _number(cell: str, row: int, col: str) -> float:
@@ -81,7 +85,7 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
              min_rows: int = 50) -> LogData:
     """Read and clean a log; raises UserError with a one-line reason when it cannot be used."""
     p = Path(path)
-    ucol, wcol, scol = _columns_for(wing)
+    ucol, wcol, scol, rcol = _columns_for(wing)
     if p.suffix.lower() in (".bin", ".tlog", ".ulg"):
         return read_fc_named_values(p, wing, require_warp, min_rows)
     try:
@@ -106,13 +110,14 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
             iw = names.index(wcol) if wcol in names else None
             ia = names.index("airspeed") if "airspeed" in names else None
             isent = names.index(scol) if scol in names else None
-            t, u, w, a, sent = [], [], [], [], []
+            iread = names.index(rcol) if rcol in names else None
+            t, u, w, a, sent, read = [], [], [], [], [], []
             rows = 0
             for lineno, row in enumerate(reader, start=2):
                 if not row or all(not c.strip() for c in row):
                     continue
                 rows += 1
-                need = max(i for i in (it, iu, iw, ia, isent) if i is not None)
+                need = max(i for i in (it, iu, iw, ia, isent, iread) if i is not None)
                 if len(row) <= need:
                     raise UserError(f"row {lineno}: {len(row)} cells, expected {len(names)}")
                 t.append(_number(row[it], lineno, "t"))
@@ -120,13 +125,14 @@ def read_log(path: str | os.PathLike, wing: str | None = None, require_warp: boo
                 w.append(_number(row[iw], lineno, wcol) if iw is not None else math.nan)
                 a.append(_number(row[ia], lineno, "airspeed") if ia is not None else math.nan)
                 sent.append(_number(row[isent], lineno, scol) if isent is not None else math.nan)
+                read.append(_number(row[iread], lineno, rcol) if iread is not None else math.nan)
         except UnicodeDecodeError:
             raise UserError(f"{p}: not a text CSV file") from None
         except csv.Error as e:
             raise UserError(f"{p}: malformed CSV ({e})") from None
     return clean(np.array(t), np.array(u), np.array(w) if iw is not None else None,
                  np.array(a) if ia is not None else None, str(p), rows, require_warp, min_rows,
-                 np.array(sent) if isent is not None else None)
+                 np.array(sent) if isent is not None else None, np.array(read) if iread is not None else None)
 
 
 def read_fc_named_values(p: Path, wing: str | None, require_warp: bool = True, min_rows: int = 50) -> LogData:
@@ -164,9 +170,10 @@ def read_fc_named_values(p: Path, wing: str | None, require_warp: bool = True, m
 
 
 def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows: int = 50,
-          sent=None) -> LogData:
+          sent=None, read=None) -> LogData:
     """Drop non-finite rows, merge repeated timestamps (keep the last), refuse time running backwards. A
-    ``sent`` column that is missing (nan) in some rows counts as sent at the row's time there."""
+    ``sent`` column that is missing (nan) in some rows counts as sent at the row's time there; a ``read``
+    column moves each row to its read (``at_reads``)."""
     notes: list[str] = []
     ok = np.isfinite(t) & np.isfinite(u)
     if w is not None and require_warp:
@@ -181,6 +188,9 @@ def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows:
     w = w[ok] if w is not None else None
     a = a[ok] if a is not None else None
     sent = sent[ok] if sent is not None else None
+    shifted = False
+    if read is not None:
+        t, sent, shifted = at_reads(t, sent, read[ok], notes)
     if t.size:
         back = np.flatnonzero(np.diff(t) < 0)
         if back.size:
@@ -225,7 +235,21 @@ def clean(t, u, w, a, path: str, rows: int, require_warp: bool = True, min_rows:
     for n in notes:
         log.info("%s: %s", path, n)
     return LogData(t=t, u=u, warp=w, airspeed=a, path=path, rows_read=rows, rows_dropped=dropped,
-                   rows_merged=merged, notes=notes, u_sent=sent)
+                   rows_merged=merged, notes=notes, u_sent=sent, read_shifted=shifted)
+
+
+def at_reads(t: np.ndarray, sent: np.ndarray | None, read: np.ndarray, notes: list[str],
+             ) -> tuple[np.ndarray, np.ndarray | None, bool]:
+    """(t, sent, moved): each row moved to its warp's read, ``read`` s after its ``t`` (missing: at ``t``), and its
+    send time counted from there, unless that puts rows out of order (then as logged, with a note)."""
+    r = np.where(np.isfinite(read) & (read >= 0), read, 0.0)
+    moved = t + r
+    if not np.all((np.diff(t) <= 0) | (np.diff(moved) > 0)):
+        notes.append("the sensor read times would put rows out of order: rows kept at their logged times")
+        return t, sent, False
+    if sent is not None:
+        sent = np.where(np.isfinite(sent), np.maximum(sent - r, 0.0), sent)
+    return moved, sent, bool(np.any(r > 0))
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
