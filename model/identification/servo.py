@@ -117,6 +117,16 @@ def fastest_rate(data: LogData, tau_s: float) -> float:
     return float(np.max(np.abs(np.diff(Servo(tau_s).apply(t, data.u[:n_end]))) / np.diff(t)))
 
 
+def refined_through(data: LogData, servo: Servo, start: np.ndarray) -> tuple[float, np.ndarray]:
+    """(training RMS of the model run free, the model) through ``servo`` after a short refinement (``TUNE_ITER``
+    steps on the search's path) of ``start``: how ``servo_tune`` and ``joint_tune`` judge a servo."""
+    lo, hi = data.bounds
+    d = data.with_servo(servo)
+    obj = Objective(FitPath.build(d.x_hat, d.w_hat, d.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS), d.norm.c)
+    th = refine(obj, start, lo, hi, TUNE_ITER, tol=FIT_TOL_Z).theta
+    return evaluate(d, th, 0.0).train_rms, th
+
+
 def servo_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
     """The scan's servo tuned on the forward error: its dead band, its lag and its speed cap, one at a time, each
     over a grid (``TUNE_DEADBANDS`` of the command's central range, ``LogData.travel_span``; ``TUNE_LAGS_S``;
@@ -127,16 +137,11 @@ def servo_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
     in travel, nor tell a lag from a cap; nor can the search's stretches, each started from the state its own
     first samples imply: the tendon's whole path through the model can. A coordinate moves to its grid's best
     value, and only when that improves the fit by ``TUNE_GAIN``. Returns the servo that fits best."""
-    lo, hi = data.bounds
     tried: dict[Servo, tuple[float, np.ndarray]] = {}
 
     def rms(sv: Servo, start: np.ndarray) -> float:
         if sv not in tried:
-            d = data.with_servo(sv)
-            obj = Objective(FitPath.build(d.x_hat, d.w_hat, d.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS),
-                            d.norm.c)
-            th = refine(obj, start, lo, hi, TUNE_ITER, tol=FIT_TOL_Z).theta
-            tried[sv] = (evaluate(d, th, 0.0).train_rms, th)
+            tried[sv] = refined_through(data, sv, start)
         return tried[sv][0]
 
     best, start = servo, theta
@@ -173,15 +178,11 @@ def joint_tune(data: LogData, theta: np.ndarray, servo: Servo) -> Servo:
     simplex's servo when it fits better by ``TUNE_GAIN``, else ``servo``."""
     if servo.tau_s <= 0:
         return servo
-    lo, hi = data.bounds
     tried: dict[Servo, float] = {}
 
     def rms(sv: Servo) -> float:
         if sv not in tried:
-            d = data.with_servo(sv)
-            obj = Objective(FitPath.build(d.x_hat, d.w_hat, d.n_train_end, SEARCH_POINTS, SEARCH_REVERSALS),
-                            d.norm.c)
-            tried[sv] = evaluate(d, refine(obj, theta, lo, hi, TUNE_ITER, tol=FIT_TOL_Z).theta, 0.0).train_rms
+            tried[sv] = refined_through(data, sv, theta)[0]
         return tried[sv]
 
     names = [k for k, on in (("tau_s", True), ("rate_mm_s", math.isfinite(servo.rate_mm_s)),
