@@ -154,7 +154,7 @@ class Bridge:
         self._starting = True
         model_file = load_model_file(config)
         self.model = core_params(model_file.params, model_file.effects)
-        self.ff_effects = model_file.effects.only(("aero_load", "backlash", "friction"))  # slack inverted per step
+        self.ff_effects = model_file.effects.only(("aero_load", "backlash", "friction", "servo_lag"))  # per step
         self.has_sensor = backend_has_sensor(config.sensor_backend) or sensor is not None
         self.fs_timeout = config.loop.failsafe_timeout_s
         self.dt = 1.0 / config.loop.rate_hz

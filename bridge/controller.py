@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from warpbridge.model.boucwen import BoucWenParams, Stepper, inverse
-from warpbridge.model.compensation import SlackInverse, aero_inverse
+from warpbridge.model.compensation import ServoInverse, SlackInverse, aero_inverse
 from warpbridge.model.effects import Effects
 
 MODES = ("open", "pi", "ff", "ff+pi")
@@ -87,8 +87,9 @@ class WingController:
         self._ran: tuple[str, str] | None = None  # (requested, effective) mode of the last step
         self._retune = False
         self._pt_offset, self._pt_gain = 0.0, 1.0  # pre-tension compensation: u = offset + u_model / gain
-        self._effects = Effects()  # a model file's aero load and slack, inverted in the feed-forward
+        self._effects = Effects()  # a model file's aero load, slack and servo, inverted in the feed-forward
         self._slack = SlackInverse(self._effects)
+        self._servo = ServoInverse(self._effects)
 
     @property
     def last_u(self) -> float:
@@ -144,11 +145,13 @@ class WingController:
         self._pt_offset, self._pt_gain = float(offset), float(gain)
 
     def set_effects(self, effects: Effects) -> None:
-        """Invert a model file's aerodynamic load (needs the airspeed given to ``step``) and tendon slack
-        (backlash and the capstan stall of friction) in the feed-forward; the friction scale and pre-tension
-        are folded into the model's parameters instead."""
+        """Invert a model file's aerodynamic load (needs the airspeed given to ``step``), tendon slack
+        (backlash and the capstan stall of friction) and servo (its lag, speed cap and dead band: the command
+        that brings it to the model's travel by the next step) in the feed-forward; the friction scale and
+        pre-tension are folded into the model's parameters instead."""
         self._effects = effects
         self._slack = SlackInverse(effects)
+        self._servo = ServoInverse(effects)
 
     def step(self, setpoint: float, measured: float | None, dt: float, airspeed: float | None = None) -> Command:
         if math.isfinite(setpoint):  # play: the model and the error see r, which ignores jitter
@@ -159,7 +162,7 @@ class WingController:
         r = self._r
         # always advanced, so switching into ff finds it current
         u_model = self._model.inverse_step(aero_inverse(r, self._effects, airspeed))
-        u_model = self._slack.step(self._pt_offset + u_model / self._pt_gain)
+        u_model = self._servo.step(self._slack.step(self._pt_offset + u_model / self._pt_gain), dt)
         have_meas = measured is not None and math.isfinite(measured)
         flags = Flags.NONE if have_meas else Flags.SENSOR_MISSING
         mode = self.mode if have_meas or self.mode in ("open", "ff") else "ff"

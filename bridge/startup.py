@@ -63,7 +63,7 @@ def load_model_file(config: Config) -> ModelFile:
         raise UserError(f"[model] file: cannot read {config.model_file}: {e.strerror or e}") from None
     except (ValueError, TypeError, UnicodeDecodeError) as e:
         raise UserError(f"[model] file: {config.model_file}: {e}") from None
-    left = [e for e in mf.effects.active() if e not in INVERTIBLE and e not in ("delay", "servo_lag")]
+    left = [e for e in mf.effects.active() if e not in INVERTIBLE and e != "delay"]
     if left:
         log.warning("model effects %s cannot be inverted by a feed-forward; the PI trim handles them",
                     ", ".join(left))
@@ -73,8 +73,8 @@ def load_model_file(config: Config) -> ModelFile:
     if mf.effects.has_servo:  # identify's servo: the tendon follows the command through its position loop
         rate = mf.effects.servo_rate_mm_s
         band = mf.effects.servo_deadband_mm
-        log.info("model: the servo follows its command with a %.0f ms lag%s%s; the feed-forward inverts the "
-                 "hysteresis only, the PI trim sees the lag", 1e3 * mf.effects.servo_tau_s,
+        log.info("model: the servo follows its command with a %.0f ms lag%s%s; the feed-forward leads it (the "
+                 "command that brings it to the model's travel by the next step)", 1e3 * mf.effects.servo_tau_s,
                  f", at most {rate:.3g} mm/s" if math.isfinite(rate) else "",
                  f", within a {band:.3g} mm dead band" if band > 0 else "")
     return mf

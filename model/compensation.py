@@ -9,7 +9,11 @@ the inverse of each static effect a MODEL.json may carry:
   band of z scaled, the backbone moved), which the inverse then runs;
 - backlash and the capstan stall of friction: the slack is taken up ahead of
   the motion (u +- the play's half-width at the command, by the direction of
-  the last move, held through pauses).
+  the last move, held through pauses);
+- the servo's position loop (``servo_lag``, identify's servo): the command that
+  brings the servo to the model's travel by the next step through its lag, from
+  its dead band's edge (``ServoInverse``; what its speed cap holds back is made
+  up as the lag allows, never by overshooting).
 
 Delay, slew-rate limit and sensor lag cannot be undone causally without a
 prediction of the setpoint; they are left to the PI trim. Drift concerns the
@@ -19,12 +23,14 @@ operators, so an augmented model and its compensator cancel exactly.
 
 from __future__ import annotations
 
+import math
+
 from warpbridge.model.boucwen import Stepper
-from warpbridge.model.effects import Effects, dynamic_pressure_kpa
+from warpbridge.model.effects import Effects, dynamic_pressure_kpa, servo_move
 from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
-INVERTIBLE = ("aero_load", "friction", "pretension", "backlash")
+INVERTIBLE = ("aero_load", "friction", "pretension", "backlash", "servo_lag")
 
 
 def aero_inverse(w_sp: float, effects: Effects, airspeed: float | None) -> float:
@@ -59,6 +65,41 @@ class SlackInverse:
         return x
 
 
+class ServoInverse:
+    """The command that brings the servo (``effects.servo_move``: a first-order approach of ``servo_tau_s`` to the
+    near edge of its ``servo_deadband_mm`` about the command, capped at ``servo_rate_mm_s``) from where it is to
+    travel ``x`` one step of ``dt`` later (``command_for``). Its position is tracked through its lag alone: where
+    the cap holds the servo back the tracked position runs ahead and the command asks for less, so the servo
+    never passes ``x`` (one that overshoots comes back to the far edge of its band, and the hysteresis keeps the
+    overshoot's warp). The band's edge is held on the side of the last move, as ``SlackInverse`` holds a play's."""
+
+    def __init__(self, effects: Effects) -> None:
+        self.tau, self.half = effects.servo_tau_s, 0.5 * effects.servo_deadband_mm
+        self.active = effects.has_servo
+        self._y: float | None = None
+        self._dir = 0.0
+
+    def command_for(self, y: float, x: float, dt: float) -> float:
+        """The command held for ``dt`` s that moves the servo from ``y`` to ``x`` through its lag, from the edge of
+        its dead band on the side of the last move."""
+        e = x - y
+        if e != 0.0:
+            self._dir = math.copysign(1.0, e)
+        lead = e / -math.expm1(-dt / self.tau) if self.tau > 0 else e
+        return y + lead + self._dir * self.half
+
+    def step(self, x: float, dt: float) -> float:
+        """The command for travel ``x`` (mm) at the next step, ``dt`` s away (the loop's last period)."""
+        if not self.active:
+            return x
+        if self._y is None or not (dt > 0 and math.isfinite(dt)):
+            self._y = x if self._y is None else self._y
+            return x + self._dir * self.half
+        c = self.command_for(self._y, x, dt)
+        self._y = float(servo_move(self._y, c, dt, self.tau, math.inf, self.half))
+        return c
+
+
 class Compensator:
     """Stateful feed-forward: ``step(w_sp, airspeed) -> u_cmd`` (deg, m/s -> mm)."""
 
@@ -66,11 +107,14 @@ class Compensator:
         self.plant = plant
         self.model = Stepper(plant.core_params(), w0=w0, z0=z0)
         self.slack = SlackInverse(plant.effects)
+        self.servo = ServoInverse(plant.effects)
 
-    def step(self, w_sp: float, airspeed: float | None = None) -> float:
+    def step(self, w_sp: float, airspeed: float | None = None, dt: float = 0.0) -> float:
+        """``dt``: s to the next step (the servo's inverse needs it; 0: the servo is not led)."""
         u = self.model.inverse_step(aero_inverse(w_sp, self.plant.effects, airspeed))
-        return self.slack.step(u)
+        return self.servo.step(self.slack.step(u), dt)
 
     def reset(self, w0: float = 0.0, z0: float = 0.0) -> None:
         self.model.reset(w0, z0)
         self.slack = SlackInverse(self.plant.effects)
+        self.servo = ServoInverse(self.plant.effects)

@@ -261,3 +261,41 @@ def test_a_model_files_aero_load_and_slack_are_inverted_in_the_feed_forward(slac
         errs[aware] = float(np.sqrt(np.mean(np.square(e[100:]))))
     assert errs[True] < 0.03
     assert errs[False] > 5 * errs[True]
+
+
+@pytest.mark.parametrize("scenario", ["random", "steps"])
+def test_the_feed_forward_leads_the_identified_servo(scenario):
+    """ff with a model file's servo (its lag, cap and dead band, as identify finds them) through the SITL's own
+    servo: a smooth setpoint is followed far closer than with the hysteresis inverted alone, and steps, which
+    the servo's speed cap sets the pace of, no worse (the lead never drives the servo past its travel)."""
+    from warpbridge.model.effects import Effects
+    from warpbridge.sitl.servo_model import ServoModel, ServoSpec
+
+    spec = ServoSpec()
+    effects = Effects(servo_tau_s=spec.tau_s, servo_rate_mm_s=spec.max_speed_mm_s,
+                      servo_deadband_mm=spec.deadband_us * spec.mm_per_us)
+    t = np.arange(0, 10, DT)
+    if scenario == "random":
+        w_sp = filtered_random(t, 2.0, 3.0, offset=7.0, seed=5)
+    else:
+        w_sp = 7.0 + 3.0 * np.sign(np.sin(2 * np.pi * 0.4 * t + 0.1))
+    errs = {}
+    for aware in (True, False):
+        ctl = WingController(P, mode="ff", w0=float(w_sp[0]), u_min=-20, u_max=30)
+        if aware:
+            ctl.set_effects(effects)
+        u0 = ctl.step(float(w_sp[0]), None, DT).u_cmd
+        servo = ServoModel(spec, t0=t[0], pulse0_us=spec.pulse_of(u0))
+        wing = Stepper(P, w0=float(w_sp[0]))
+        e = []
+        for k in range(1, t.size):
+            u = ctl.step(float(w_sp[k]), None, DT).u_cmd
+            e.append(wing.forward_step(servo.step(t[k] + DT, spec.pulse_of(u))) - w_sp[k])
+        e = np.asarray(e[100:])
+        settled = np.array([np.all(w_sp[max(k - 30, 0):k + 1] == w_sp[k]) for k in range(1, t.size)])[100:]  # 0.3 s
+        errs[aware] = [float(np.sqrt(np.mean(x ** 2))) for x in (e, e[settled] if settled.any() else e)]
+    if scenario == "random":
+        assert errs[True][0] < 0.1 * errs[False][0]
+    else:  # the transitions go at the cap either way; once there, the servo rests where the model asked
+        assert errs[True][0] < 1.01 * errs[False][0]
+        assert errs[True][1] < 0.5 * errs[False][1]
