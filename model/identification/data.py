@@ -94,6 +94,12 @@ class LogData:
         return replace(self, servo=servo, x=x, x_hat=(x - self.norm.uc) / self.norm.us)
 
     @property
+    def train_duration(self) -> float:
+        """The training part's length (s)."""
+        n = self.n_train_end
+        return float(self.t[n - 1] - self.t[0]) if n > 1 else 0.0
+
+    @property
     def travel_span(self) -> float:
         """The command's central range (mm): what a dead band is measured against."""
         lo, hi = central_range(self.u)

@@ -32,11 +32,16 @@ this package's modules (named in brackets where a step's name is not its module'
    command held until the next, ``effects.servo_follow``); the best servo, when it lowers their
    input-side cost by ``LAG_GAIN_SURE`` (or by ``LAG_GAIN`` and a short refinement of the final model
    without it fits better through it), is put in front of the model once the model without it is final
-   (steps 5-8): the design is solved again through it and refined, with the model found without it as
-   one more start, checked for a fold and against the simpler models; its dead band, lag and cap are then
+   (steps 5-8; when the scan proposed none, a lag of ``LAG_PROBE_S`` is checked the same way, and goes on
+   when that check or the model's miss of the training part asks for it): the design is solved again through
+   it and refined, with the model found without it as one more start, checked for a fold and against the
+   simpler models, through the servo with a dead band of ``LAG_PASS_BAND`` and without (the band kept when it
+   fits better by ``TUNE_GAIN``: a closed loop's jitter reverses a model fed through no band); its dead band,
+   lag and cap are then
    tuned on the forward error, one at a time and then together (``servo.servo_tune``, ``servo.joint_tune``:
    the input-side cost cannot see a dead band, and a cap or a band alone can fit worse than none) and the
-   model refined again through the tuned servo when that fits better; the servo is kept only when
+   model refined again through the tuned servo when that fits better, for up to ``TUNE_ROUNDS`` rounds (a servo
+   tuned from a model far from the data is off itself); the servo is kept only when
    the result fits the training part better by ``DELAY_GAIN`` and by what the information criterion asks
    of its parameters on the log's effective samples (``servo.lag_pays``; ``servo_tau_s``, ``servo_rate_mm_s``;
    not with a delay scan, whose delay stands for it).
@@ -89,6 +94,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -106,6 +112,8 @@ from warpbridge.model.identification.result import IdentResult
 from warpbridge.model.identification.servo import (
     LAG_GAIN_SURE,
     LAG_GRID_S,
+    LAG_SHARE,
+    TUNE_GAIN,
     lag_checks,
     lag_pays,
     lag_scan,
@@ -126,6 +134,23 @@ ESCALATE_NOISES = 5.0  # ... or when the first result's training RMS is above th
 GLOBAL_SEEDED = 10  # the design's best starts placed in its first population, beside the refined results
 POPSIZE_GLOBAL = 110  # its population (ten per parameter of a two-sided wing)
 MAXITER_GLOBAL = 150  # generations of the escalation's global search at most (``global_search``)
+# a servo is tried when the scan proposed none (or its short check refused it) but a short refinement through a
+# lag of ``LAG_PROBE_S`` fits better (``servo.lag_checks``), or the model without one misses the training part by
+# more than ``LAG_PROBE_NOISES`` noise deviations: through the true servo the design's best input-side cost can
+# exceed the raw command's (a stepped log through a 20 ms, 100 mm/s servo: 0.012 against 0.004; the scan of an
+# open-loop bench log through a 20 ms servo proposes none on 3 of 10 seeds), and a short refinement from the model
+# without a servo, settled in its own basin, can miss it too
+LAG_PROBE_NOISES = 2.0
+LAG_PROBE_S = 0.02  # the servo tried then: a hobby servo's position loop (tuned on the forward error from there)
+# the servo is tuned again from the model refined through the tuned one (a servo tuned from a model far from the
+# data, through a servo the scan placed far off, is off itself) at most this many rounds, while a round lowers the
+# training RMS by ``TUNE_ROUND_GAIN`` and the fit stays above ``TUNE_ROUND_NOISES`` noise deviations
+TUNE_ROUNDS = 3
+TUNE_ROUND_GAIN = 0.05
+TUNE_ROUND_NOISES = 1.1
+# the dead band the lag pass also searches through, per the command's central range (``LogData.travel_span``;
+# ``servo.TUNE_DEADBANDS``' middle: 44 um on the SITL's 5.5 mm; the tuning moves it after)
+LAG_PASS_BAND = 0.008
 # the search trace's record of the fold and simpler-model steps: the lag's pass writes its own, kept with it
 LAG_PASS_FIELDS = ("fold_deg", "working_range_deg", "fold_outcome", "fold_train_rms", "line_restart", "kept_start")
 
@@ -214,26 +239,67 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if not checked.active:
             trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s  # proposed, refused by the short refinement
         lag = checked
+    probe_fits = max_delay_s <= 0 and LAG_PROBE_S <= min(max_lag_s, LAG_SHARE * data.train_duration)
+    if not lag.active and probe_fits:
+        # the input-side cost can miss a servo (``LAG_PROBE_S``): a short refinement through a hobby servo's lag
+        # decides, or the model without one missing the training part by ``LAG_PROBE_NOISES`` noise deviations
+        probe = lag_checks(data, best.theta, Servo(LAG_PROBE_S))
+        if probe.active or best.train_rms > LAG_PROBE_NOISES * data.noise:
+            log.info("no servo from the scan; trying %s (the model without one: training RMS %.3g deg, noise %.3g)",
+                     probe if probe.active else Servo(LAG_PROBE_S), best.train_rms, data.noise)
+            lag = probe if probe.active else Servo(LAG_PROBE_S)
     if lag.active:  # the scan's servo: the design solved through it and refined, the model without it a start
-        plain, data = data, data.with_servo(lag)
+        plain = data
         kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}  # what the model without the lag did
-        lag_starts = linear_solve(data, S, labels, keep_starts)
-        th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
-        with_lag = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
-        with_lag = simpler_models(data, with_lag, lag_starts, trace, search, progress)
-        tuned = servo_tune(data, with_lag.theta, lag)
-        if tuned != lag:  # the model refined again through the servo tuned on the forward error
+
+        def through(servo: Servo) -> tuple[Candidate, LogData, dict]:
+            """The design solved through ``servo`` and refined (``search`` runs on ``data``, set to the log through
+            it), the model without it a start."""
+            nonlocal data
+            data = plain.with_servo(servo)
+            lag_starts = linear_solve(data, S, labels, keep_starts)
+            th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
+            cand = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
+            cand = simpler_models(data, cand, lag_starts, trace, search, progress)
+            return cand, data, {k: getattr(trace, k) for k in LAG_PASS_FIELDS}
+
+        # the scan cannot see a dead band, and a closed loop's command jitters: through a servo without one every
+        # jitter is a reversal of the model, and the search can settle far from the noise (0.98 deg on a stepped
+        # log whose servo, with its 31 um band, fits at 0.033); the model is searched through the scan's servo
+        # with and without a band (``LAG_PASS_BAND`` of the command's central range), the band kept when it fits
+        # better by what the tuning asks of a coordinate (``TUNE_GAIN``)
+        passes = [through(lag)]
+        if lag.deadband_mm <= 0:
+            banded = replace(lag, deadband_mm=LAG_PASS_BAND * plain.travel_span)
+            passes.append(through(banded))
+            if passes[1][0].train_rms < (1.0 - TUNE_GAIN) * passes[0][0].train_rms:  # as the tuning moves a band
+                log.info("servo %s: the model fits better through it with a dead band, %s (%.4g deg against %.4g)",
+                         lag, banded, passes[1][0].train_rms, passes[0][0].train_rms)
+                lag = banded
+            else:
+                passes.pop()
+        with_lag, data, fields = passes[-1]
+        for k, v in fields.items():
+            setattr(trace, k, v)
+        for _ in range(TUNE_ROUNDS):
+            tuned = servo_tune(data, with_lag.theta, lag)
+            if tuned == lag:
+                break
+            # the model refined again through the servo tuned on the forward error, from the model through the
+            # servo before and from the design solved through the tuned one: a servo the scan placed far off (a
+            # cap without a lag) leaves a model no short refinement brings back
             scanned, data = data, plain.with_servo(tuned)
-            # from the model through the scan's servo and from the design solved through the tuned one: a servo
-            # the scan placed far off (a cap without a lag) leaves a model no short refinement brings back
             tuned_starts = linear_solve(data, S, labels, keep_starts)
             th, d = search(np.vstack([with_lag.theta, tuned_starts.thetas]), ["servo tuned", *tuned_starts.labels],
                            None, "lag")
             again = fold_check(data, evaluate(data, th, d), tuned_starts, trace, search)
+            gain = again.train_rms < (1.0 - TUNE_ROUND_GAIN) * with_lag.train_rms
             if again.train_rms < with_lag.train_rms:
                 lag, with_lag = tuned, again
             else:
                 data = scanned
+            if not gain or with_lag.train_rms <= TUNE_ROUND_NOISES * data.noise:
+                break
         trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s
         trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
         if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask], lag.parameters):

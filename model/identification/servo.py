@@ -29,6 +29,7 @@ LAG_GAIN = 0.1  # a lag is proposed when it lowers the design's best input-side 
 # cost on the SITL's logs; a smaller gain (0.6-0.8 left on bench logs, a sine's with no lag at all 0.69) is
 # first checked by a short refinement of the model without it, with and without the lag (``lag_checks``)
 LAG_GAIN_SURE = 0.5
+LAG_SHARE = 0.05  # no lag longer than this share of the training part
 LAG_SHAPES = 32  # the design's best distinct shapes (at no lag) the scan solves at each lag
 # speed caps the scan tries, per the fastest the lagged command asks for: a servo crosses a large jump of the
 # command at its rated speed (a hobby servo's 0.1 s per 60 deg on a 10 mm horn is about 100 mm/s of tendon)
@@ -64,9 +65,8 @@ def lag_scan(data: LogData, S: np.ndarray, max_lag_s: float) -> tuple[Servo, flo
     best lag and its neighbours places it between grid points (the cap likewise, in its logarithm). Returns
     (servo, cost with it / cost without); no servo unless it lowers the cost by ``LAG_GAIN``; the forward
     error decides later."""
-    t, n_end = data.t, data.n_train_end
-    dur = float(t[n_end - 1] - t[0]) if n_end > 1 else 0.0
-    grid = [d for d in LAG_GRID_S if d <= max_lag_s and d <= 0.05 * dur]
+    n_end = data.n_train_end
+    grid = [d for d in LAG_GRID_S if d <= max_lag_s and d <= LAG_SHARE * data.train_duration]
     if not grid:
         return Servo(), 1.0
     lo, hi = shape_bounds(data.two_sided)
