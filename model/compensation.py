@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 from warpbridge.model.boucwen import Stepper
-from warpbridge.model.effects import Effects, dynamic_pressure_kpa, servo_move
+from warpbridge.model.effects import Effects, dynamic_pressure_kpa
 from warpbridge.model.plant import Plant
 
 #: the effects a feed-forward can cancel exactly
@@ -67,37 +67,31 @@ class SlackInverse:
 
 class ServoInverse:
     """The command that brings the servo (``effects.servo_move``: a first-order approach of ``servo_tau_s`` to the
-    near edge of its ``servo_deadband_mm`` about the command, capped at ``servo_rate_mm_s``) from where it is to
-    travel ``x`` one step of ``dt`` later (``command_for``). Its position is tracked through its lag alone: where
-    the cap holds the servo back the tracked position runs ahead and the command asks for less, so the servo
-    never passes ``x`` (one that overshoots comes back to the far edge of its band, and the hysteresis keeps the
-    overshoot's warp). The band's edge is held on the side of the last move, as ``SlackInverse`` holds a play's."""
+    near edge of its ``servo_deadband_mm`` about the command, capped at ``servo_rate_mm_s``) from the last travel
+    asked of it to travel ``x`` one step of ``dt`` later, through its lag alone: where the cap holds the servo
+    back, the command asks for less, so the servo never passes ``x`` (one that overshoots comes back to the far
+    edge of its band, and the hysteresis keeps the overshoot's warp). The band's edge is held on the side of the
+    last move, as ``SlackInverse`` holds a play's."""
 
     def __init__(self, effects: Effects) -> None:
         self.tau, self.half = effects.servo_tau_s, 0.5 * effects.servo_deadband_mm
         self.active = effects.has_servo
-        self._y: float | None = None
+        self._x: float | None = None  # the last travel asked: where the servo's lag alone has brought it
         self._dir = 0.0
-
-    def command_for(self, y: float, x: float, dt: float) -> float:
-        """The command held for ``dt`` s that moves the servo from ``y`` to ``x`` through its lag, from the edge of
-        its dead band on the side of the last move."""
-        e = x - y
-        if e != 0.0:
-            self._dir = math.copysign(1.0, e)
-        lead = e / -math.expm1(-dt / self.tau) if self.tau > 0 else e
-        return y + lead + self._dir * self.half
 
     def step(self, x: float, dt: float) -> float:
         """The command for travel ``x`` (mm) at the next step, ``dt`` s away (the loop's last period)."""
         if not self.active:
             return x
-        if self._y is None or not (dt > 0 and math.isfinite(dt)):
-            self._y = x if self._y is None else self._y
+        if self._x is None or not (dt > 0 and math.isfinite(dt)):
+            self._x = x if self._x is None else self._x
             return x + self._dir * self.half
-        c = self.command_for(self._y, x, dt)
-        self._y = float(servo_move(self._y, c, dt, self.tau, math.inf, self.half))
-        return c
+        e = x - self._x
+        if e != 0.0:
+            self._dir = math.copysign(1.0, e)
+        self._x = x
+        lead = e / -math.expm1(-dt / self.tau) if self.tau > 0 else e
+        return x - e + lead + self._dir * self.half
 
 
 class Compensator:
