@@ -392,24 +392,14 @@ def test_a_servo_the_input_side_scan_misses_is_tried_where_the_model_without_it_
     assert res.heldout_rms < 1.5 * res.noise  # 17x the noise without a servo
 
 
-def test_the_servo_is_tuned_again_from_the_model_refined_through_it():
-    """A servo tuned from a model far from the data is off itself: on this stepped log one round of tuning and
-    refinement stops at a 25 ms servo without a cap, 1.3x the noise held out; the rounds after reach the truth."""
+@pytest.mark.parametrize("command_seed", [6, 7], ids=["later-rounds", "while-above-the-noise"])
+def test_the_servo_is_tuned_again_from_the_model_refined_through_it(command_seed):
+    """A servo tuned from a model far from the data is off itself. Command seed 6: one round of tuning and
+    refinement stops at a 25 ms servo without a cap, 1.3x the noise held out (fails with ``TUNE_ROUNDS = 1``).
+    Command seed 7: the first round's 23 ms servo without a cap fits within 1.04x the noise on training and misses
+    the held-out part 4.4x (fails with ``TUNE_ROUND_NOISES = 1.1``). The rounds after reach the truth."""
     t = T[: T.size // 2]
-    u = stepped_command(t, 6)
-    _, w = noisy_log(servo_follow(t, u, 0.02, 100.0, float(u[0]), 0.03), 6)
-    res = identify(t, u, w, maxiter=60)
-    assert res.heldout_rms < 1.15 * res.noise
-    assert res.servo_tau_s == pytest.approx(0.02, abs=0.003)
-    assert res.servo_rate_mm_s == pytest.approx(100.0, rel=0.1)
-
-
-def test_the_servo_is_tuned_again_while_the_fit_is_above_the_noise():
-    """On this stepped log the first round's servo, tuned from a model 3x off, is 23 ms without a cap: the model
-    through it fits within 1.04x the noise on training and misses the held-out part 4.4x. The next round, tuned
-    from that model, reaches the truth."""
-    t = T[: T.size // 2]
-    u = stepped_command(t, 7)
+    u = stepped_command(t, command_seed)
     _, w = noisy_log(servo_follow(t, u, 0.02, 100.0, float(u[0]), 0.03), 6)
     res = identify(t, u, w, maxiter=60)
     assert res.heldout_rms < 1.15 * res.noise
