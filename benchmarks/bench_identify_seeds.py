@@ -68,6 +68,18 @@ SUBPROCESS = ("warpbridge.bridge.cli",)  # record_sitl's `warpbridge sitl` runs
 AMPLITUDES = (50, 60, 70)
 
 
+def shown_paths(arg: str | None) -> str | None:
+    """Comma-separated files as the results show them: relative to the repository when inside it, else by name
+    (no path of the machine that ran the benchmark is written into a result)."""
+    if not arg:
+        return arg
+    out = []
+    for part in arg.split(","):
+        p = Path(part).resolve()
+        out.append(str(p.relative_to(REPO)) if p.is_relative_to(REPO) else p.name)
+    return ",".join(out)
+
+
 def rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e ** 2)))
 
@@ -204,6 +216,7 @@ def main() -> None:
     ap.add_argument("--merge", help="a JSON of this benchmark whose runs fill in the versions not run here "
                                     "(the old code's figures measured in an earlier run of the same logs)")
     args = ap.parse_args()
+    merge_name, resume_names = shown_paths(args.merge), shown_paths(args.resume)
 
     versions = {}
     if "new" in args.versions.split(","):
@@ -232,7 +245,7 @@ def main() -> None:
     print(head, flush=True)
     baseline = args.baseline or (prev.get("baseline") if args.merge and "old" not in versions else None)
     out = {"format": "warpbridge-bench-identify-seeds/1", "baseline": baseline, "seeds": args.seeds,
-           "old_seeds": old_seeds, "merged_from": args.merge, "resumed_from": args.resume,
+           "old_seeds": old_seeds, "merged_from": merge_name, "resumed_from": resume_names,
            "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "logs": []}
     sets = args.sets.split(",")
     logs: list[dict] = []
@@ -253,11 +266,11 @@ def main() -> None:
     for lg in logs:
         t, u, w = lg["t"], lg["u"], lg["w"]
         if (lg["set"], lg["log"]) in done:
-            rec = done[(lg["set"], lg["log"])] | {"resumed_from": args.resume}
+            rec = done[(lg["set"], lg["log"])] | {"resumed_from": resume_names}
             for key, runs in merged.get((lg["set"], lg["log"]), {}).get("runs", {}).items():
                 if key not in rec["runs"]:
                     rec["runs"][key] = runs
-                    rec.setdefault("merged_from", {})[key] = args.merge
+                    rec.setdefault("merged_from", {})[key] = merge_name
             summarise(rec, bool(lg["others"]))
             out["logs"].append(rec)
             print(f"{lg['set']}  {lg['log']}  (kept from {args.resume})", flush=True)
@@ -273,7 +286,7 @@ def main() -> None:
         for key, runs in merged.get((lg["set"], lg["log"]), {}).get("runs", {}).items():
             if key not in versions:
                 rec["runs"][key] = runs
-                rec.setdefault("merged_from", {})[key] = args.merge
+                rec.setdefault("merged_from", {})[key] = merge_name
         for seed in range(max([n[k] for k in versions], default=0)):
             for key, ident in versions.items():  # interleaved: both see the same load
                 if seed < n[key]:

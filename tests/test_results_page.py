@@ -4,6 +4,7 @@ they are: this code's, or (stale) the sources the newest archive was computed on
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -189,3 +190,15 @@ def test_docs_results_is_up_to_date_with_the_archives_and_this_code():
 @pytest.mark.parametrize("line", ["# Measured figures", "<!-- hand-written -->"])
 def test_a_page_without_the_generated_first_line_records_no_digest(line):
     assert results_page.page_digest(line + "\n") is None
+
+
+def test_no_stored_result_or_page_names_a_path_of_the_machine_that_made_it():
+    """Results and docs are read on other machines: a temporary or home folder written into them (a benchmark's
+    ``--resume`` argument stored as given) means nothing there."""
+    machine = re.compile(r"(?<![\w.~-])/(?:tmp|home|root|work|Users|var/folders)/")
+    files = [*ROOT.glob("*.md"), *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks" / "results").rglob("*.json"),
+             *(ROOT / "benchmarks" / "results").rglob("*.md")]
+    assert len(files) > 5
+    found = [f"{f.relative_to(ROOT)}: {m.group(0)}" for f in files
+             for m in [machine.search(f.read_text(encoding="utf-8"))] if m]
+    assert found == []
