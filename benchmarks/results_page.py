@@ -541,9 +541,16 @@ def _closed_loop_line(recs: list[dict]) -> list[str]:
         else []
 
 
+def _train_spread(r: dict) -> float | None:
+    """Largest over smallest training RMS of the current code's seeds: what the search itself minimises (seeds
+    that agree here but not on held-out data ended in fits the training part cannot tell apart)."""
+    tr = [x["train_rms_deg"] for x in r["runs"].get("new", []) if x.get("train_rms_deg")]
+    return max(tr) / min(tr) if tr else None
+
+
 def _seed_rows(recs: list[dict], kind: str) -> tuple[list[str], list[list[str]]]:
     header = ["log", "noise floor", "baseline: straight line", "held-out min / median / max", "spread (max/min)",
-              "seed 0 / old code's best (ratio)", "s/fit, median (old)"]
+              "training spread", "seed 0 / old code's best (ratio)", "s/fit, median (old)"]
     if kind == "sitl":
         header += ["closed loop / open-loop bench (old)", "servo kept: lag ms @ speed cap mm/s"]
     if kind == "realdata":
@@ -554,7 +561,9 @@ def _seed_rows(recs: list[dict], kind: str) -> tuple[list[str], list[list[str]]]
         new = r.get("new") or {}
         held = "-" if new.get("median") is None else " / ".join(_f3(new[k]) for k in ("min", "median", "max"))
         spread = "-" if new.get("spread") is None else f"{new['spread']:.3f}"
-        row = [r["log"], _f3(r["noise_deg"]), _f3(r["line_heldout_rms_deg"]), held, spread, _over_old(r), _secs(r)]
+        ts = _train_spread(r)
+        row = [r["log"], _f3(r["noise_deg"]), _f3(r["line_heldout_rms_deg"]), held, spread,
+               "-" if ts is None else f"{ts:.3f}", _over_old(r), _secs(r)]
         if kind == "sitl":
             row += [_closed_over_bench(r, bench.get(r["plant"])), _servo(r)]
         if kind == "realdata":
@@ -565,15 +574,17 @@ def _seed_rows(recs: list[dict], kind: str) -> tuple[list[str], list[list[str]]]
 
 
 def _seed_summary(recs: list[dict]) -> list[str]:
-    """One set's figures over its logs: spread, seeds agreeing within 1 %, seed 0 against the old code's best,
-    the line beaten, time."""
+    """One set's figures over its logs: spread, seeds agreeing within 1 % (held out; on the training part in
+    brackets), seed 0 against the old code's best, the line beaten, time."""
     have = [r for r in recs if (r.get("new") or {}).get("median") is not None]
     if not have:
         return ["-"] * 6
     spreads = [r["new"]["spread"] for r in have]
+    train = [x for x in map(_train_spread, have) if x is not None]
     ratios = [r["default_over_old_best"] for r in have if "default_over_old_best" in r]
     old_secs = [r["old"]["seconds_median"] for r in have if (r.get("old") or {}).get("median") is not None]
-    return [f"{np.median(spreads):.3f} / {max(spreads):.3f}", _frac(sum(x <= 1.01 for x in spreads), len(have)),
+    return [f"{np.median(spreads):.3f} / {max(spreads):.3f}",
+            f"{_frac(sum(x <= 1.01 for x in spreads), len(have))} ({_frac(sum(x <= 1.01 for x in train), len(train))})",
             f"{np.median(ratios):.2f} / {max(ratios):.2f}" if ratios else "-",
             _frac(sum(x <= 1.05 for x in ratios), len(ratios)),
             _frac(sum(r["new"]["median"] < r["line_heldout_rms_deg"] for r in have), len(have)),
@@ -603,7 +614,10 @@ def identify_seeds_section(inp: Inputs) -> list[str]:
            "",
            "Held-out RMS (deg, each log's last quarter, fitted on the rest) of `identify` with the defaults a user "
            "gets, run with `--seed` 0, 1, ... per log (how many per set in the first table); the spread is the "
-           "largest over the smallest. The baselines: the straight line fitted on the same samples, the log's "
+           "largest over the smallest. The training spread is the same over the training RMS, which the search "
+           "minimises: seeds that agree there but not held out ended in fits the training part cannot tell apart, "
+           "seeds apart there ended in basins of different depth. The baselines: the straight line fitted on the "
+           "same samples, the log's "
            "noise floor, and the old code "
            + (f"(revision `{rec['baseline']}`, a seeded random search) " if rec.get("baseline") else "")
            + "on the same logs, its best seed set against the default run's (seed 0). Seconds per fit are the "
@@ -621,7 +635,8 @@ def identify_seeds_section(inp: Inputs) -> list[str]:
            + ("" if rec.get("finished") else f" **The run stopped before its end: these are the {len(logs)} logs it "
               "measured.**"),
            "",
-           *_table(["logs", "count", "seeds (old code's)", "spread over seeds, median / max", "seeds agree within 1 %",
+           *_table(["logs", "count", "seeds (old code's)", "spread over seeds, median / max",
+                    "seeds agree within 1 % (on training)",
                     "seed 0 / old code's best, median / max", "within 1.05x", "median seed beats the line",
                     "s/fit, median (old)"],
                    [[SEED_SETS[s].split(" (")[0], str(sum(r["set"] == s for r in logs)), _seed_counts(logs, s),
