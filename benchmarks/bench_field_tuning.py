@@ -7,7 +7,7 @@ Lock-step SITL with the whole bridge in-process (``sitl.field_tuning``). The sim
 with pre-tension offset +0.8 mm, gain 1.10 and 15 % more friction than the bridge's (paper) model; in the
 drift condition the offset moves by a further 10 % of the tendon range (the model's tendon travel over
 0..max warp) during the flight. ff+pi runs with kp 0.7, ki 20 (``sitl.field_tuning.FFPI_GAINS``).
-Targets (issue 7): calibrated and adapted within 1.5x of matched. ``--json OUT`` also writes both tables,
+Target: calibrated and adapted within 1.5x of matched. ``--json OUT`` also writes both tables,
 keyed by the sources the run imported (``stored.py``; ``results_page.py`` reads
 ``benchmarks/results/field-tuning.json``).
 """

@@ -10,7 +10,7 @@ printed: it must be at rounding level, or the two do different work). For
 reference only, the kernel's own code with numba's JIT disabled (a subprocess with
 NUMBA_DISABLE_JIT=1, every operation on numpy scalars) is timed too; it is slower
 than the plain baseline and is not the ratio we report. Medians of repeated runs.
-Targets (issue 2): under 10 ms for the whole 60 s compiled.
+Target: under 10 ms for the whole 60 s compiled.
 
 Run: python benchmarks/bench_forward.py [--no-jit-off]
 """

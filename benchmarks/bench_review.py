@@ -8,7 +8,7 @@ length), so that it holds what the real one holds, message for message, for abou
 Times (medians of ``--repeats`` runs): reading the DataFlash log with our reader (pymavlink's DFReader,
 asking only for the message types the review uses), against the baseline a user would write first, a
 plain pass of pymavlink over every message (``recv_match()`` without a type, as ``mavlogdump`` reads);
-reading the cycle log; joining; the analysis; the HTML report. Target (issue 83): under 30 s for a
+reading the cycle log; joining; the analysis; the HTML report. Target: under 30 s for a
 10-minute flight, all of it.
 
 The real PX4 SIH flight of tests/data (``.ulg`` and cycle log) is timed the same way, its baseline being

@@ -23,7 +23,8 @@ cold and warm. Beside them, in the same run, the floor: a process that only impo
 pymavlink (what any MAVLink companion program in Python loads). Medians over ``--runs``; the load
 average is printed before and after, since every figure here moves with it.
 
-Figures from before the lean run path (issue 12, same machine): 237 MB peak, 2.5-3.8 s to the first cycle.
+Figures of an earlier version that imported every module at start (same machine): 237 MB peak, 2.5-3.8 s to
+the first cycle.
 """
 
 from __future__ import annotations
@@ -208,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     print(table(rows, ["process", "peak RSS MB", "x floor", "first servo cmd s", "follows FC s", "cpu ms/cycle"]))
     print(f"\nmedians of {args.runs} runs each ({args.duration:g} s per run; first servo cmd and the floor's time are"
           f" from spawning the process: for the floor, to its exit)")
-    print(f"before the lean run path (issue 12): peak RSS {OLD['rss']}, {OLD['first']}")
+    print(f"an earlier version importing every module at start: peak RSS {OLD['rss']}, {OLD['first']}")
     n_tick = max(1, args.runs // 2)
     ticks = {mode: [tick_cost(mode) for _ in range(n_tick)] for mode in ("interpreted", "compiled")}
     print()

@@ -208,7 +208,7 @@ def pooled_table(folds: dict, seeds: list[int]) -> str:
         for dk, sub in subs:
             closed += [(c, closed_at(r, dk, bare=True)) for r in sub
                        if len(r["truth"]) == 1 and (c := closed_at(r, dk)) is not None]
-            # the condition: an effect well above what the nominal model got wrong on the bench
+            # the clear cases: an effect well above what the nominal model got wrong on the bench
             well = [r for r in sub if len(r["truth"]) == 1 and well_above_misfit(r)]
             clear["clear"] += len(well)
             clear["clear_ok"] += sum(verdict_at(r, dk) == r["truth"] for r in well)

@@ -185,7 +185,7 @@ def test_predict_plot_draws_the_prediction_against_the_log(workdir, tmp_path, mo
 
 
 def test_a_log_starting_with_the_tendon_loaded_is_predicted_from_its_first_sample(workdir, tmp_path, capsys):
-    """Issue 11's target: a correct model's whole-log RMS within 1.1x of its RMS after the first 5 s."""
+    """The target: a correct model's whole-log RMS within 1.1x of its RMS after the first 5 s."""
     assert run("simulate", "-o", tmp_path / "long.csv", "--duration", 40, "--rate", 200, "--seed", 6) == 0
     log = np.loadtxt(tmp_path / "long.csv", delimiter=",", skiprows=1)
     u, w = log[:, 1], log[:, 2]

@@ -84,7 +84,7 @@ def test_the_estimate_recovers_the_state_the_plant_had(loaded_log, cut):
 
 
 def test_a_loaded_start_predicts_as_well_as_the_rest_of_the_log(loaded_log):
-    """Whole-log RMS of the right model within 1.1x of its RMS after the first 5 s (issue 11's target)."""
+    """Whole-log RMS of the right model within 1.1x of its RMS after the first 5 s (the target)."""
     p, u, w, z = loaded_log
     cut = 5000  # the tendon at the top of a loading run
     rng = np.random.default_rng(0)

@@ -43,7 +43,7 @@ def test_feed_forward_and_pi_beat_open_loop_on_the_paper_plant(calm):
     # the controller knows this plant exactly (an upper bound): feed-forward + PI far ahead, as on the
     # paper's bench (0.285 deg against 1.727 open loop)
     mean = {m: 0.5 * (r["left"] + r["right"]) for m, r in calm.items()}
-    assert mean["ff+pi"] <= 0.15  # issue 4's target on the paper's plant and reference
+    assert mean["ff+pi"] <= 0.15  # the target on the paper's plant and reference
     assert mean["ff+pi"] < mean["ff"] < mean["open"] and mean["ff+pi"] < mean["pi"] < mean["open"]
     assert mean["open"] > 5 * mean["ff+pi"] and mean["open"] > 0.5
 
