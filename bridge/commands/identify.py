@@ -50,8 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", help="PNG of measured vs model loops, time series and residual")
     p.add_argument("--heldout", type=float, default=0.25, help="fraction of the log held out (default 0.25)")
     p.add_argument("--seed", type=int, default=0,
-                   help="scramble of the start design (default 0, the fixed default design); the answer does not "
-                        "depend on it beyond the refinement's tolerance: another seed is a check, not a second chance")
+                   help="scramble of the start design (default 0, the fixed default design). On a log that "
+                        "excites the loop well, seeds end at fits within a few percent of each other; on a poorly "
+                        "excited one (the report says so) they can end in basins of different depth. Another seed "
+                        "is a check: keep the fit with the lower training RMS, never choose by the held-out part")
     p.add_argument("--maxiter", type=int, default=150,
                    help="most Levenberg-Marquardt steps of each refinement (default 150; at most 40 are taken on "
                         "the search's part of the log)")
