@@ -7,6 +7,7 @@ import json
 import re
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -202,3 +203,34 @@ def test_no_stored_result_or_page_names_a_path_of_the_machine_that_made_it():
     found = [f"{f.relative_to(ROOT)}: {m.group(0)}" for f in files
              for m in [machine.search(f.read_text(encoding="utf-8"))] if m]
     assert found == []
+
+
+def seed_log(name: str, train: list[float], held: list[float]) -> dict:
+    """One bench log of bench_identify_seeds' output, reduced to what the page reads."""
+    runs = [{"seed": i, "train_rms_deg": tr, "heldout_rms_deg": h, "seconds": 3.0} for i, (tr, h) in
+            enumerate(zip(train, held, strict=True))]
+    summary = {"min": min(held), "median": sorted(held)[len(held) // 2], "max": max(held),
+               "spread": max(held) / min(held), "seconds_median": 3.0, "default_heldout_rms_deg": held[0]}
+    return {"set": "bench", "log": name, "plant": "paper", "open_loop_bench": True, "noise_deg": 0.05,
+            "line_heldout_rms_deg": 1.0, "runs": {"new": runs, "old": runs[:1]}, "new": summary,
+            "old": summary | {"min": held[0], "median": held[0], "max": held[0], "spread": 1.0},
+            "default_over_old_best": 1.0}
+
+
+def test_the_seed_table_gives_the_training_spread_beside_the_held_out_one(tmp_path):
+    """Seeds that agree on the training part but not held out are told apart from seeds whose training fits
+    differ: the first log agrees within 1 % on training only, the second on neither, the third on both."""
+    logs = [seed_log("flat valley", [0.0500, 0.0502, 0.0503], [0.060, 0.064, 0.062]),
+            seed_log("two basins", [0.40, 0.52, 0.41], [0.70, 0.90, 0.71]),
+            seed_log("one answer", [0.0500, 0.0500, 0.0501], [0.0510, 0.0511, 0.0510])]
+    path = tmp_path / "identify-seeds.json"
+    path.write_text(json.dumps({"seeds": 3, "baseline": "abc1234", "merged_from": None, "finished": "x",
+                                "logs": logs}), encoding="utf-8")
+    page = "\n".join(results_page.identify_seeds_section(SimpleNamespace(identify_seeds=path)))
+    summary = next(line for line in page.splitlines() if line.startswith("| Simulated bench logs"))
+    assert "| 1/3 (2/3) |" in summary
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in page.splitlines()
+            if line.startswith(("| flat valley", "| two basins", "| one answer"))}
+    assert rows["flat valley"][5] == "1.006" and rows["flat valley"][4] == "1.067"
+    assert rows["two basins"][5] == "1.300"
+    assert rows["one answer"][5] == "1.002"
