@@ -145,3 +145,43 @@ def test_an_added_crossing_is_caught(tmp_path, monkeypatch):
                                                                           "warpbridge.bridge.config"}
     assert circles({"p.a": {"p.b"}, "p.b": {"p.c"}, "p.c": {"p.a"}, "p.d": {"p"}, "p": {"p.d"}}) == [
         "p.a -> p.b -> p.c -> p.a"]
+
+
+FILE_CALLS = {"open", "read_text", "write_text", "read_bytes", "write_bytes", "load", "save", "savez", "loadtxt",
+              "savetxt", "genfromtxt", "mkdir", "unlink", "rmtree", "remove", "rename", "replace", "glob"}
+FILE_MODULES = {"np", "numpy", "os", "shutil", "pathlib", "Path", "json", "pickle", "io"}
+
+
+def file_calls(f: Path) -> list[str]:
+    """Calls in ``f`` that touch files: ``open(...)``, or a file method or function of a module or object named
+    like one that reads or writes (``Path.read_text``, ``np.load``, ``shutil.rmtree``, ``x.write_text``)."""
+    found = []
+    for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+        if not isinstance(node, ast.Call):
+            continue
+        fn = node.func
+        if isinstance(fn, ast.Name) and fn.id == "open":
+            found.append(f"{node.lineno} open")
+        elif isinstance(fn, ast.Attribute) and fn.attr in FILE_CALLS:
+            owner = fn.value.id if isinstance(fn.value, ast.Name) else None
+            # str.replace and dataclasses.replace are not file calls: a path method on an unknown object is
+            if fn.attr in {"replace", "load", "save", "remove"} and owner not in FILE_MODULES:
+                continue
+            found.append(f"{node.lineno} {ast.unparse(fn)}")
+    return found
+
+
+def test_model_touches_no_file_but_the_compile_cache():
+    """``model/`` is pure numerics: its only file access is ``model._jit``'s, naming numba's compile cache."""
+    found = [f"{m}:{c}" for m, f in MODULES.items() if folder(m) == "model" and m != "warpbridge.model._jit"
+             for c in file_calls(f)]
+    assert found == []
+    assert file_calls(MODULES["warpbridge.model._jit"])  # the check sees what it looks for
+
+
+def test_a_file_call_is_caught(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import numpy as np\nfrom dataclasses import replace\n\ndef f(p, q):\n"
+                 "    x = replace(q, a=1)\n    y = 'a'.replace('a', 'b')\n    np.save(p, x)\n"
+                 "    return p.read_text(), open(p), y\n", encoding="utf-8")
+    assert sorted(c.split(" ", 1)[1] for c in file_calls(f)) == ["np.save", "open", "p.read_text"]
