@@ -610,7 +610,7 @@ def identify_seeds_section(inp: Inputs) -> list[str]:
            + ",".join(sorted({r["log"].split()[2].removeprefix("s") for r in logs
                               if r["set"] == "sitl" and not r["open_loop_bench"]}) or "0")
            + (f" --merge {merged}" if merged else "") + f" --json benchmarks/results/{IDENTIFY_SEEDS}")
-    out = ["## Identification: the same answer from any seed",
+    out = ["## Identification: the answer over seeds",
            "",
            "Held-out RMS (deg, each log's last quarter, fitted on the rest) of `identify` with the defaults a user "
            "gets, run with `--seed` 0, 1, ... per log (how many per set in the first table); the spread is the "
