@@ -45,16 +45,21 @@ def project_module(name: str) -> str | None:
     return name if name in MODULES else None
 
 
+def inside_functions(tree: ast.AST) -> set[int]:
+    """ids of the nodes inside a function's body: run when it is called, not when its module is imported."""
+    return {id(s) for fn in ast.walk(tree) if isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef)
+            for s in ast.walk(fn) if s is not fn}
+
+
 def imports(module: str, *, top_level_only: bool = False) -> dict[str, list[int]]:
     """Project modules ``module`` imports, with the lines, every statement or (``top_level_only``) those run
     when it is imported (not inside a function)."""
     f = MODULES[module]
     tree = ast.parse(f.read_text(encoding="utf-8"))
-    inner = {id(s) for fn in ast.walk(tree) if isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef)
-             for s in ast.walk(fn)}
+    inner = inside_functions(tree) if top_level_only else set()
     out: dict[str, list[int]] = {}
     for node in ast.walk(tree):
-        if isinstance(node, ast.Import | ast.ImportFrom) and not (top_level_only and id(node) in inner):
+        if isinstance(node, ast.Import | ast.ImportFrom) and id(node) not in inner:
             for name in imported(node, module, f.name == "__init__.py"):
                 m = project_module(name) if name.startswith("warpbridge") else None
                 if m and m != module:
@@ -123,12 +128,11 @@ def test_model_imports_nothing_inside_a_function_but_the_compiled_modes_numba():
         if folder(m) != "model":
             continue
         tree = ast.parse(f.read_text(encoding="utf-8"))
-        for fn in ast.walk(tree):
-            if isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
-                for s in ast.walk(fn):
-                    if isinstance(s, ast.Import | ast.ImportFrom):
-                        names = [a.name for a in s.names] if isinstance(s, ast.Import) else [s.module or "."]
-                        found += [f"{m}:{s.lineno} {n}" for n in names if (m, n) not in LAZY_IN_MODEL]
+        inner = inside_functions(tree)
+        for s in ast.walk(tree):
+            if isinstance(s, ast.Import | ast.ImportFrom) and id(s) in inner:
+                names = [a.name for a in s.names] if isinstance(s, ast.Import) else [s.module or "."]
+                found += [f"{m}:{s.lineno} {n}" for n in names if (m, n) not in LAZY_IN_MODEL]
     assert found == []
 
 
