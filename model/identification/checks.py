@@ -39,20 +39,35 @@ def working_range(w: np.ndarray, two_sided: bool) -> tuple[float, float]:
     return lo, hi
 
 
-def fold_check(data: LogData, best: Candidate, starts: Starts, trace: SearchTrace, search) -> Candidate:
-    """Step 7: a backbone that folds inside the working range is refined again from starts that do not fold,
-    folding backbones rejected; the result is kept unless it fits the training part ``FOLD_KEEP`` worse."""
+def fold_range(data: LogData) -> tuple[float, float]:
+    """The working range (``working_range``) in the search's normalised warp."""
     w_lo, w_hi = working_range(data.w, data.two_sided)
-    fold_hat = (w_lo / data.norm.ws, w_hi / data.norm.ws)
-    if fold_depth(best.theta, data.norm.c, *fold_hat)[0] > 0:
+    return w_lo / data.norm.ws, w_hi / data.norm.ws
+
+
+def folds(data: LogData, theta: np.ndarray) -> bool:
+    """Does the backbone of the search vector ``theta`` fold inside the working range?"""
+    return bool(fold_depth(theta, data.norm.c, *fold_range(data))[0] > 0)
+
+
+def fold_check(data: LogData, best: Candidate, starts: Starts, trace: SearchTrace, search,
+               more: np.ndarray | None = None) -> Candidate:
+    """Step 7: a backbone that folds inside the working range is refined again from starts that do not fold
+    (the design's, and ``more``: a global search's members without a fold), folding backbones rejected; the
+    result is kept unless it fits the training part ``FOLD_KEEP`` worse."""
+    w_lo, w_hi = working_range(data.w, data.two_sided)
+    fold_hat = fold_range(data)
+    if folds(data, best.theta):
         trace.fold_deg = float(data.norm.ws * backbone_vertex(best.theta, data.norm.c)[0])
         trace.working_range_deg = (w_lo, w_hi)
         log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: refining again with "
                  "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
-        flat = starts.thetas.copy()
+        flat, labels = starts.thetas, list(starts.labels)
+        if more is not None and len(more):
+            flat, labels = np.vstack([more, flat]), ["global"] * len(more) + labels
         ok = fold_depth(flat, data.norm.c, *fold_hat) <= 0
-        th2, d2 = search(flat[ok] if ok.any() else flat, [n for n, k in zip(starts.labels, ok, strict=True) if k]
-                         if ok.any() else starts.labels, fold_hat, "refine without a fold")
+        th2, d2 = search(flat[ok] if ok.any() else flat, [n for n, k in zip(labels, ok, strict=True) if k]
+                         if ok.any() else labels, fold_hat, "refine without a fold")
         unfolded = evaluate(data, th2, d2)
         trace.fold_train_rms = (best.train_rms, unfolded.train_rms)
         if fold_depth(th2, data.norm.c, *fold_hat)[0] > 0:

@@ -44,7 +44,7 @@ from warpbridge.model.identification.space import normalised_to_theta, thetas_to
 from warpbridge.model.monotone import monotone_between_turns
 from warpbridge.model.signals import linear_fit, noise_floor, reversal_indices, turning_indices
 
-DESIGN_SEED = 20170101  # the Sobol' scramble of the default design (fixed: the answer does not depend on luck)
+DESIGN_SEED = 20170101  # the Sobol' scramble of the default design (fixed: the default answer is reproducible)
 DESIGN_LOG2 = 9  # 2^9 trial shapes
 DESIGN_POINTS = 1500  # samples of the warp path the design scores on, at most ...
 DESIGN_REVERSALS = 80  # ... and reversals (in evenly spread stretches beyond that)

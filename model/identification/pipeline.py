@@ -71,7 +71,10 @@ this package's modules (named in brackets where a step's name is not its module'
 7. ``fold check`` (``checks``): a backbone u = a1 w^2 + a2 w + a3 that turns back inside the
    working range (``working_range``) is refined again from starts that do not
    fold, with folding backbones rejected; kept unless it fits the training part
-   more than ``FOLD_KEEP`` worse (then the data show the fold).
+   more than ``FOLD_KEEP`` worse (then the data show the fold). After an
+   escalation the starts include a global search's over the backbones without a
+   fold (``global_members``): on a poorly excited log the folding basins hold the
+   escalation's search, and the design's starts alone can miss the best fit.
 8. ``simpler models`` (``checks``): a fit whose training RMS is above the best straight
    line's (fitted on the same samples) is a failed search: the refinement
    starts again from the line and from the quadratic backbone, and a result
@@ -84,10 +87,13 @@ this package's modules (named in brackets where a step's name is not its module'
     effective sample count (``uncertainty.intervals``); the parameters the data
     do not determine are named.
 
-The answer does not depend on luck: the design is fixed and the refinements are
-deterministic. Everything here is pure numerics; progress is reported through a
-callback (stages "design", "refine", "refine again", "global", "refine without a fold",
-"delay", "line").
+The default answer is reproducible: the design's scramble is fixed and the
+refinements are deterministic. Another ``seed`` scrambles the design (and the
+global searches) differently: on a log that excites the loop well the seeds end
+at fits within a few percent of each other, on a poorly excited one they can end
+in basins of different depth (the excitation step says when). Everything here is
+pure numerics; progress is reported through a callback (stages "design",
+"refine", "refine again", "global", "refine without a fold", "delay", "line").
 """
 
 from __future__ import annotations
@@ -100,13 +106,13 @@ import numpy as np
 
 from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.model.effects import delayed
-from warpbridge.model.identification.checks import fold_check, simpler_models, support_check
+from warpbridge.model.identification.checks import fold_check, fold_range, folds, simpler_models, support_check
 from warpbridge.model.identification.data import LogData, Servo, read
 from warpbridge.model.identification.delay import DELAY_GAIN, delay_scan
 from warpbridge.model.identification.design import Starts, linear_solve, start_design
 from warpbridge.model.identification.excitation import excitation_check
-from warpbridge.model.identification.global_search import global_search
-from warpbridge.model.identification.path import refine
+from warpbridge.model.identification.global_search import GlobalResult, global_search
+from warpbridge.model.identification.path import Objective, refine
 from warpbridge.model.identification.refine import Candidate, Refiner, SearchTrace, at_exponent_edge, evaluate
 from warpbridge.model.identification.result import IdentResult
 from warpbridge.model.identification.servo import (
@@ -164,8 +170,8 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     """Identify the Bouc-Wen model (warp -> tendon) from a log by forward output error (see the module).
 
     ``t`` s, ``u`` mm, ``w`` deg, cleaned (finite, t strictly increasing). The last ``heldout_frac`` of the log
-    (by time) is held out. ``seed`` selects the scramble of the start design (0: the fixed default; the answer
-    does not depend on it beyond the refinements' tolerance); ``popsize`` distinct design starts are ranked on
+    (by time) is held out. ``seed`` selects the scramble of the start design (0: the fixed default; see the
+    module for what another seed changes); ``popsize`` distinct design starts are ranked on
     the forward error; each refinement takes at most ``maxiter`` Gauss-Newton steps and ``polish_evals``
     evaluations; ``prior`` (default: the paper's parameters) adds its shape to the design. ``max_lag_s`` bounds
     the servo lag the scan tries in front of the model (0: none), ``max_delay_s`` the transport delay (with a
@@ -234,7 +240,13 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             best = again
     if not first.agreed or best.train_rms > ESCALATE_NOISES * data.noise:
         best = escalate(data, best, first, starts, seed, trace, search, progress)
-    best = fold_check(data, best, starts, trace, search)
+    unfolded = None
+    if trace.global_search and folds(data, best.theta):
+        # the refinement without the fold (step 7) searches globally too: on a poorly excited log the folding
+        # basins hold the escalation's search, and the design's unfolded starts alone can miss the best fit
+        # without a fold (a bend log with three reversals: 0.61 deg from them, 0.43 with the search)
+        unfolded = global_members(data, first, starts, seed, fold_range(data), progress).thetas
+    best = fold_check(data, best, starts, trace, search, unfolded)
     best = simpler_models(data, best, starts, trace, search, progress)
     if lag.active and lag_ratio > 1.0 - LAG_GAIN_SURE:
         checked = lag_checks(data, best.theta, lag)
@@ -327,26 +339,32 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         servo_rate_mm_s=data.servo.rate_mm_s, servo_deadband_mm=data.servo.deadband_mm)
 
 
-def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, seed: int, trace: SearchTrace,
-             search, progress) -> Candidate:
-    """Step 5's escalation: no two refined design starts agreed, or the result fits far above the noise
-    floor, so the design may have missed the best basin. A global search (``global_search``, seed derived
-    from the design's) over the refinement's objective, its first population holding the refined results and
-    the design's best starts; its best members are refined like the design's; the result that runs free over the
-    training part better is kept."""
+def global_members(data: LogData, first: Refiner, starts: Starts, seed: int, fold: tuple[float, float] | None,
+                   progress) -> GlobalResult:
+    """A global search (``global_search``, seed derived from the design's) over
+    the refinement's objective, backbones folding inside ``fold`` (normalised warp) rejected when it is given;
+    its first population holds the first refinement's results and the design's best starts."""
     lo, hi = data.bounds
     refined = sorted(first.refined, key=lambda x: x[0])
     seeded = np.vstack([np.array([x[1] for x in refined]).reshape(-1, lo.size), starts.thetas[:GLOBAL_SEEDED]])
-    log.info("no two refined starts agree, or the fit is far above the noise floor (training RMS %.3g deg, noise "
-             "%.3g): a global search (differential evolution) from the refined starts", best.train_rms, data.noise)
-    trace.global_search = True
 
     def cb(i: int) -> None:
         if progress:
             progress("global", min(i, MAXITER_GLOBAL), MAXITER_GLOBAL)
 
-    g = global_search(first.search, lo, hi, seeded, seed, popsize=POPSIZE_GLOBAL, maxiter=MAXITER_GLOBAL,
-                      callback=cb)
+    obj = first.search if fold is None else Objective(first.search.path, first.search.c, first.search.tol, fold=fold)
+    return global_search(obj, lo, hi, seeded, seed, popsize=POPSIZE_GLOBAL, maxiter=MAXITER_GLOBAL, callback=cb)
+
+
+def escalate(data: LogData, best: Candidate, first: Refiner, starts: Starts, seed: int, trace: SearchTrace,
+             search, progress) -> Candidate:
+    """Step 5's escalation: no two refined design starts agreed, or the result fits far above the noise
+    floor, so the design may have missed the best basin. A global search (``global_members``) whose best
+    members are refined like the design's; the result that runs free over the training part better is kept."""
+    log.info("no two refined starts agree, or the fit is far above the noise floor (training RMS %.3g deg, noise "
+             "%.3g): a global search (differential evolution) from the refined starts", best.train_rms, data.noise)
+    trace.global_search = True
+    g = global_members(data, first, starts, seed, None, progress)
     trace.global_generations = g.generations
     th, d = search(g.thetas, ["global"] * len(g.thetas), None, "global")
     cand = evaluate(data, th, d)
