@@ -53,8 +53,8 @@ def folds(data: LogData, theta: np.ndarray) -> bool:
 def fold_check(data: LogData, best: Candidate, starts: Starts, trace: SearchTrace, search,
                more: np.ndarray | None = None) -> Candidate:
     """Step 7: a backbone that folds inside the working range is refined again from starts that do not fold
-    (the design's, and ``more``: a global search's members without a fold), folding backbones rejected; the
-    result is kept unless it fits the training part ``FOLD_KEEP`` worse."""
+    (the design's, and apart from them ``more``: a global search's members without a fold, the better kept),
+    folding backbones rejected; the result is kept unless it fits the training part ``FOLD_KEEP`` worse."""
     w_lo, w_hi = working_range(data.w, data.two_sided)
     fold_hat = fold_range(data)
     if folds(data, best.theta):
@@ -62,13 +62,18 @@ def fold_check(data: LogData, best: Candidate, starts: Starts, trace: SearchTrac
         trace.working_range_deg = (w_lo, w_hi)
         log.info("the backbone folds at %.3g deg, inside the working range %.3g..%.3g deg: refining again with "
                  "the fold kept outside it", trace.fold_deg, w_lo, w_hi)
-        flat, labels = starts.thetas, list(starts.labels)
-        if more is not None and len(more):
-            flat, labels = np.vstack([more, flat]), ["global"] * len(more) + labels
+        flat = starts.thetas
         ok = fold_depth(flat, data.norm.c, *fold_hat) <= 0
-        th2, d2 = search(flat[ok] if ok.any() else flat, [n for n, k in zip(labels, ok, strict=True) if k]
-                         if ok.any() else labels, fold_hat, "refine without a fold")
+        th2, d2 = search(flat[ok] if ok.any() else flat, [n for n, k in zip(starts.labels, ok, strict=True) if k]
+                         if ok.any() else starts.labels, fold_hat, "refine without a fold")
         unfolded = evaluate(data, th2, d2)
+        if more is not None and len(more):
+            # refined apart from the design's (ranked together, the global members can push the design's best
+            # start out of the few refined), the better on training kept
+            th3, d3 = search(more, ["global"] * len(more), fold_hat, "refine without a fold")
+            searched = evaluate(data, th3, d3)
+            if searched.train_rms < unfolded.train_rms and fold_depth(th3, data.norm.c, *fold_hat)[0] <= 0:
+                unfolded, th2 = searched, th3
         trace.fold_train_rms = (best.train_rms, unfolded.train_rms)
         if fold_depth(th2, data.norm.c, *fold_hat)[0] > 0:
             trace.fold_outcome = "still folds"
