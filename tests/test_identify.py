@@ -480,6 +480,62 @@ def test_a_backbone_folding_where_the_wing_flies_is_searched_again_without_the_f
     assert flagged == 0 and w_ramp[0] < np.percentile(w, 0.5) - 0.5
 
 
+def test_the_fold_check_refines_further_starts_apart_and_never_takes_a_fold_from_them():
+    """``fold_check(more=...)``: the further starts (after an escalation, a global search's members) are refined in
+    a search of their own, not ranked among the design's; the better fit without a fold is kept, and a result
+    of theirs that still folds is not taken however well it fits."""
+    from warpbridge.model.identification.checks import fold_check, folds
+    from warpbridge.model.identification.data import read
+    from warpbridge.model.identification.design import Starts
+    from warpbridge.model.identification.refine import SearchTrace, evaluate
+    from warpbridge.model.identification.space import normalised_to_theta
+
+    folding = BoucWenParams(a1=0.05, a2=-0.2, a3=1.0, az=P.az, A=P.A, n=P.n, b=P.b)  # vertex at 2 deg
+    u = filtered_random(T[:4000], 1.0, 1.6, offset=3.6, seed=4)
+    _, w = noisy_log(u, 3, params=folding)
+    data = read(T[:4000], u, w, 0.25)
+
+    def theta(p):
+        th = normalised_to_theta(data.norm.to_normalised(p), data.two_sided, data.norm.c)
+        assert th is not None
+        return th
+
+    truth = theta(folding)
+    # two straight backbones (no fold), one nearer the wing's than the other
+    near = theta(BoucWenParams(a1=0.0, a2=0.6, a3=-2.0, az=P.az, A=P.A, n=P.n, b=P.b))
+    far = theta(BoucWenParams(a1=0.0, a2=0.4, a3=-0.8, az=P.az, A=P.A, n=P.n, b=P.b))
+    assert folds(data, truth) and not folds(data, near) and not folds(data, far)
+    rms = {k: evaluate(data, th, 0.0).train_rms for k, th in (("truth", truth), ("near", near), ("far", far))}
+    assert rms["truth"] < rms["near"] < rms["far"]
+    calls = []
+
+    def search(thetas, names, fold, stage):
+        """No refinement: each search returns its first start (no delay), and says what it was given."""
+        calls.append((np.array(thetas), list(names), stage))
+        return thetas[0], 0.0
+
+    design = Starts(thetas=np.vstack([truth, far]), input_rms=np.zeros(2), labels=["design", "line"],
+                    evaluations=0)
+
+    def check(more):
+        calls.clear()
+        trace = SearchTrace()
+        kept = fold_check(data, evaluate(data, truth, 0.0), design, trace, search, more)
+        return kept, trace
+
+    # the design's folding start is left out; alone, the design's start without a fold is what is compared
+    _, alone = check(None)
+    assert len(calls) == 1 and calls[0][1] == ["line"] and np.array_equal(calls[0][0], far[None, :])
+    assert alone.fold_train_rms == (rms["truth"], rms["far"])
+    # further starts: searched in a call of their own, and the better on training kept
+    _, further = check(np.vstack([near, far]))
+    assert [c[1] for c in calls] == [["line"], ["global", "global"]]
+    assert further.fold_train_rms == (rms["truth"], rms["near"])
+    assert further.fold_outcome == "fits worse"  # FOLD_KEEP then decides, as for the design's starts
+    # a further start that still folds after its search is not taken, although it fits best
+    _, folded = check(truth[None, :])
+    assert folded.fold_train_rms == (rms["truth"], rms["far"])
+
 def test_a_fold_the_log_itself_shows_is_kept():
     """A backbone that turns at 16.7 deg and a log that reaches it: without the fold the fit is twice as bad on
     the training part, so the first search's model, fold and all, is kept and the fit says why."""
