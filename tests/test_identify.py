@@ -536,6 +536,7 @@ def test_the_fold_check_refines_further_starts_apart_and_never_takes_a_fold_from
     _, folded = check(truth[None, :])
     assert folded.fold_train_rms == (rms["truth"], rms["far"])
 
+
 def test_a_fold_the_log_itself_shows_is_kept():
     """A backbone that turns at 16.7 deg and a log that reaches it: without the fold the fit is twice as bad on
     the training part, so the first search's model, fold and all, is kept and the fit says why."""
