@@ -362,6 +362,33 @@ def test_the_servos_lag_is_found_in_front_of_the_hysteresis_on_a_stepped_closed_
     assert bare.heldout_rms > 3.0 * res.heldout_rms
 
 
+def test_with_a_servo_the_scan_is_sure_of_the_escalation_waits_until_the_servo_is_refused(monkeypatch):
+    """The model without the scan's sure servo is only a start and a yardstick: its global search runs only once
+    the servo is refused, after the search through it."""
+    from warpbridge.model.identification import pipeline
+
+    t = T[: T.size // 2]
+    u = stepped_command(t, 5)
+    _, w = noisy_log(servo_follow(t, u, 0.03, math.inf, float(u[0])), 6)  # the scan's servo halves its cost
+    monkeypatch.setattr(pipeline, "ESCALATE_NOISES", 0.0)  # every first fit escalates ...
+    monkeypatch.setattr(pipeline, "MAXITER_GLOBAL", 3)  # ... through a short search
+    escalated = []
+    real = pipeline.escalate
+
+    def escalate(data, best, first, starts, seed, trace, *rest):
+        escalated.append((data.servo.active, trace.lag_train_rms is not None))
+        return real(data, best, first, starts, seed, trace, *rest)
+
+    monkeypatch.setattr(pipeline, "escalate", escalate)
+    kept = identify(t, u, w, maxiter=20)
+    assert kept.servo_tau_s == pytest.approx(0.03, abs=0.008)
+    assert escalated == [] and not kept.trace.global_search
+    monkeypatch.setattr(pipeline, "lag_pays", lambda *a, **k: False)
+    refused = identify(t, u, w, maxiter=20)
+    assert refused.servo_tau_s == 0.0
+    assert escalated == [(False, True)] and refused.trace.global_search  # after the pass, without the servo
+
+
 def test_a_servo_that_crosses_the_commands_jumps_at_its_rated_speed_is_found_capped():
     t = T[: T.size // 2]
     u = stepped_command(t, 5)  # jumps of up to 4.5 mm: at 60 mm/s the servo needs up to 75 ms for one

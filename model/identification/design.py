@@ -11,11 +11,9 @@ integration of z over the measured warp and a four-column least-squares solve
 (separable least squares, variable projection, on the input-side error). The
 trial shapes are a deterministic, well-spread design: a scrambled Sobol' sequence
 with a fixed seed, the paper's shape and the prior's; the straight line and the
-quadratic without hysteresis (az = 0) are inside every solve. The best few
-distinct shapes are refined on the same input-side error (the linear
-coefficients solved again at every step), and handed on, in the search's
-parameter vector (``space``), to the refinement on the forward warp
-error. Steps 3 (``start_design``) and 4 (``linear_solve``) of ``identify``
+quadratic without hysteresis (az = 0) are inside every solve. The best
+distinct shapes are handed on, in the search's parameter vector (``space``),
+to the refinement on the forward warp error. Steps 3 (``start_design``) and 4 (``linear_solve``) of ``identify``
 run it on a log's ``LogData``; the straight line and the quadratic backbone are
 appended to the starts it hands on.
 
@@ -33,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import median_filter
-from scipy.optimize import least_squares
 from scipy.stats import qmc
 
 from warpbridge.model import kernels as K
@@ -57,7 +54,6 @@ SMOOTH_SHARE, SMOOTH_MAX = 0.05, 51  # the warp's moving median (edges kept): th
 SHAPE_BOUNDS_ONE_SIDED = [(1.0, 5.0), (-2.0, 0.5), (-1.0, 1.0), (-7.0, 0.85), (-7.0, 0.85)]
 SHAPE_BOUNDS_TWO_SIDED = SHAPE_BOUNDS_ONE_SIDED + [(-4.0, 4.0), (-4.0, 4.0)]
 DISTINCT = 0.08  # starts closer than this (share of the design box, RMS over coordinates) are one start
-SHAPE_ITER = 40  # most input-side refinement steps of a start
 LOOP_FLOOR = 1e-3  # az (normalised) of a start without hysteresis: a loop too narrow to matter
 LINE_ZSAT = -3.5  # log10 of the state's saturation (normalised) of the straight-line and quadratic starts
 
@@ -308,32 +304,6 @@ def distinct_best(S: np.ndarray, cost: np.ndarray, k: int, lo: np.ndarray, hi: n
             if len(chosen) >= k:
                 break
     return np.asarray(chosen, dtype=np.int64)
-
-
-def refine_shape(problem: InputSide, s0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                 max_iter: int = SHAPE_ITER) -> np.ndarray:
-    """Variable projection: the shape refined on the input-side error with (alpha, az) solved at every step;
-    the Jacobian's columns integrated in parallel."""
-    s0 = np.clip(s0, lo, hi)
-
-    def fun(s):
-        return problem.residuals(s[None, :])[0]
-
-    def jac(s):
-        h = 1e-6 * np.maximum(1.0, np.abs(s))
-        h = np.where(s + h > hi, -h, h)
-        X = np.tile(s, (s.size + 1, 1))
-        X[np.arange(s.size), np.arange(s.size)] += h
-        R = problem.residuals(X)
-        return (R[:-1] - R[-1][None, :]).T / h[None, :]
-
-    width = hi - lo
-    try:
-        res = least_squares(fun, s0, jac=jac, bounds=(lo - 1e-12 * width, hi + 1e-12 * width), method="trf",
-                            x_scale="jac", max_nfev=max_iter, xtol=1e-8, ftol=1e-8)
-    except (ValueError, np.linalg.LinAlgError):
-        return s0
-    return np.clip(res.x, lo, hi)
 
 
 # ---- steps 3-4: start design and linear solve --------------------------------------------------

@@ -32,8 +32,10 @@ this package's modules (named in brackets where a step's name is not its module'
    command held until the next, ``effects.servo_follow``); the best servo, when it lowers their
    input-side cost by ``LAG_GAIN_SURE`` (or by ``LAG_GAIN`` and a short refinement of the final model
    without it fits better through it), is put in front of the model once the model without it is final
-   (steps 5-8; when the scan proposed none, a lag of ``LAG_PROBE_S`` is checked the same way, and goes on
-   when that check or the model's miss of the training part asks for it): the design is solved again through
+   (steps 5-8; with a servo the scan is sure of, that model is only a start and a yardstick, and its
+   escalation waits until the servo is refused; when the scan proposed none, a lag of ``LAG_PROBE_S`` is
+   checked the same way, and goes on when that check or the model's miss of the training part asks for
+   it): the design is solved again through
    it and refined, with the model found without it as one more start, checked for a fold and against the
    simpler models, through the servo with a dead band of ``LAG_PASS_BAND`` and without (the band kept when it
    fits better by ``TUNE_GAIN``: a closed loop's jitter reverses a model fed through no band); its dead band,
@@ -238,16 +240,26 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         if again.train_rms < best.train_rms:
             trace.restart_kept = True
             best = again
-    if not first.agreed or best.train_rms > ESCALATE_NOISES * data.noise:
-        best = escalate(data, best, first, starts, seed, trace, search, progress)
-    unfolded = None
-    if trace.global_search and folds(data, best.theta):
-        # the refinement without the fold (step 7) searches globally too: on a poorly excited log the folding
-        # basins hold the escalation's search, and the design's unfolded starts alone can miss the best fit
-        # without a fold (a bend log with three reversals: 0.61 deg from them, 0.43 with the search)
-        unfolded = global_members(data, first, starts, seed, fold_range(data), progress).thetas
-    best = fold_check(data, best, starts, trace, search, unfolded)
-    best = simpler_models(data, best, starts, trace, search, progress)
+    escalates = not first.agreed or best.train_rms > ESCALATE_NOISES * data.noise
+    # a servo the scan is sure of goes in front of the final model, and the model without it is then only a
+    # start of the search through it and the yardstick it must beat: its escalation waits until the servo is
+    # refused (on the SITL's cycle logs the wait halves the time and changes no fit)
+    waits = escalates and lag.active and lag_ratio <= 1.0 - LAG_GAIN_SURE
+
+    def settle(cand: Candidate, escalated: bool) -> Candidate:
+        """Step 5's escalation when ``escalated``, then steps 7-8, on the log without a servo."""
+        if escalated:
+            cand = escalate(data, cand, first, starts, seed, trace, search, progress)
+        unfolded = None
+        if trace.global_search and folds(data, cand.theta):
+            # the refinement without the fold (step 7) searches globally too: on a poorly excited log the
+            # folding basins hold the escalation's search, and the design's unfolded starts alone can miss the
+            # best fit without a fold (a bend log with three reversals: 0.61 deg from them, 0.43 with it)
+            unfolded = global_members(data, first, starts, seed, fold_range(data), progress).thetas
+        cand = fold_check(data, cand, starts, trace, search, unfolded)
+        return simpler_models(data, cand, starts, trace, search, progress)
+
+    best = settle(best, escalates and not waits)
     if lag.active and lag_ratio > 1.0 - LAG_GAIN_SURE:
         checked = lag_checks(data, best.theta, lag)
         if not checked.active:
@@ -324,6 +336,8 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             data = plain
             for k, v in kept_trace.items():
                 setattr(trace, k, v)
+            if waits:
+                best = settle(best, True)
     err = best.w_pred - data.w
     held_rms = float(np.sqrt(np.mean(err[data.held_mask] ** 2))) if data.held_mask.any() else float("nan")
     unc = uncertainty(data, best, exc)
