@@ -364,8 +364,21 @@ def test_the_servos_lag_is_found_in_front_of_the_hysteresis_on_a_stepped_closed_
 
 def test_with_a_servo_the_scan_is_sure_of_the_escalation_waits_until_the_servo_is_refused(monkeypatch):
     """The model without the scan's sure servo is only a start and a yardstick: its global search runs only once
-    the servo is refused, after the search through it."""
+    the servo is refused, after the search through it. What the fold check did is reported of the model kept."""
     from warpbridge.model.identification import pipeline
+
+    real_fold_check = pipeline.fold_check
+
+    def fold_check(data, best, *rest):
+        """As the real one, and the model without a servo always folded."""
+        kept = real_fold_check(data, best, *rest)
+        if not data.servo.active:
+            trace = rest[1]
+            trace.fold_deg, trace.working_range_deg, trace.fold_outcome = 1.0, (0.0, 2.0), "kept"
+            trace.fold_train_rms = (1.0, 1.0)
+        return kept
+
+    monkeypatch.setattr(pipeline, "fold_check", fold_check)
 
     t = T[: T.size // 2]
     u = stepped_command(t, 5)
@@ -383,10 +396,12 @@ def test_with_a_servo_the_scan_is_sure_of_the_escalation_waits_until_the_servo_i
     kept = identify(t, u, w, maxiter=20)
     assert kept.servo_tau_s == pytest.approx(0.03, abs=0.008)
     assert escalated == [] and not kept.trace.global_search
+    assert kept.trace.fold_deg is None and kept.trace.fold_outcome == ""  # the model through the servo's record
     monkeypatch.setattr(pipeline, "lag_pays", lambda *a, **k: False)
     refused = identify(t, u, w, maxiter=20)
     assert refused.servo_tau_s == 0.0
     assert escalated == [(False, True)] and refused.trace.global_search  # after the pass, without the servo
+    assert refused.trace.fold_deg == 1.0 and refused.trace.fold_outcome == "kept"
 
 
 def test_a_servo_that_crosses_the_commands_jumps_at_its_rated_speed_is_found_capped():

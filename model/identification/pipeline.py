@@ -283,6 +283,9 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             it), the model without it a start."""
             nonlocal data
             data = plain.with_servo(servo)
+            fresh = SearchTrace()
+            for k in LAG_PASS_FIELDS:  # the pass's own record (a fold of the model without the servo is not its)
+                setattr(trace, k, getattr(fresh, k))
             lag_starts = linear_solve(data, S, labels, keep_starts)
             th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
             cand = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
