@@ -389,7 +389,7 @@ def test_with_a_servo_the_scan_is_sure_of_the_escalation_waits_until_the_servo_i
     real = pipeline.escalate
 
     def escalate(data, best, first, starts, seed, trace, *rest):
-        escalated.append((data.servo.active, trace.lag_train_rms is not None))
+        escalated.append((data.servo.active, trace.lag_s > 0))  # (through a servo, after the pass through it)
         return real(data, best, first, starts, seed, trace, *rest)
 
     monkeypatch.setattr(pipeline, "escalate", escalate)
@@ -397,6 +397,12 @@ def test_with_a_servo_the_scan_is_sure_of_the_escalation_waits_until_the_servo_i
     assert kept.servo_tau_s == pytest.approx(0.03, abs=0.008)
     assert escalated == [] and not kept.trace.global_search
     assert kept.trace.fold_deg is None and kept.trace.fold_outcome == ""  # the model through the servo's record
+    monkeypatch.setattr(pipeline, "WAIT_MISS", 0.0)  # no servo cuts the miss decisively: the yardstick escalates
+    judged = identify(t, u, w, maxiter=20)
+    assert escalated == [(False, True)] and judged.servo_tau_s == pytest.approx(0.03, abs=0.008)
+    assert judged.trace.fold_deg is None  # the record of the model kept, through the servo
+    escalated.clear()
+    monkeypatch.setattr(pipeline, "WAIT_MISS", 0.5)
     monkeypatch.setattr(pipeline, "lag_pays", lambda *a, **k: False)
     refused = identify(t, u, w, maxiter=20)
     assert refused.servo_tau_s == 0.0

@@ -158,6 +158,9 @@ LAG_PROBE_S = 0.02  # the servo tried then: a hobby servo's position loop (tuned
 TUNE_ROUNDS = 3
 TUNE_ROUND_GAIN = 0.05
 TUNE_ROUND_NOISES = 1.0
+# with a servo the scan is sure of, the model without it escalates only once the servo is refused, or when the
+# model through it misses the training part by more than this share of that model's miss (not decisively better)
+WAIT_MISS = 0.5
 # the dead band the lag pass also searches through, per the command's central range (``LogData.travel_span``;
 # ``servo.TUNE_DEADBANDS``' middle: 44 um on the SITL's 5.5 mm; the tuning moves it after)
 LAG_PASS_BAND = 0.008
@@ -243,7 +246,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
     escalates = not first.agreed or best.train_rms > ESCALATE_NOISES * data.noise
     # a servo the scan is sure of goes in front of the final model, and the model without it is then only a
     # start of the search through it and the yardstick it must beat: its escalation waits until the servo is
-    # refused (on the SITL's cycle logs the wait halves the time and changes no fit)
+    # refused or fits not decisively better (``WAIT_MISS``; on the SITL's cycle logs the wait halves the time)
     waits = escalates and lag.active and lag_ratio <= 1.0 - LAG_GAIN_SURE
 
     def settle(cand: Candidate, escalated: bool) -> Candidate:
@@ -259,7 +262,13 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
         cand = fold_check(data, cand, starts, trace, search, unfolded)
         return simpler_models(data, cand, starts, trace, search, progress)
 
+    raw = best
     best = settle(best, escalates and not waits)
+
+    def fresh_record() -> None:
+        """The fold check's and simpler models' record started afresh (a later pass writes its own)."""
+        for k in LAG_PASS_FIELDS:
+            setattr(trace, k, getattr(SearchTrace(), k))
     if lag.active and lag_ratio > 1.0 - LAG_GAIN_SURE:
         checked = lag_checks(data, best.theta, lag)
         if not checked.active:
@@ -283,9 +292,7 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             it), the model without it a start."""
             nonlocal data
             data = plain.with_servo(servo)
-            fresh = SearchTrace()
-            for k in LAG_PASS_FIELDS:  # the pass's own record (a fold of the model without the servo is not its)
-                setattr(trace, k, getattr(fresh, k))
+            fresh_record()  # the pass's own record (a fold of the model without the servo is not its)
             lag_starts = linear_solve(data, S, labels, keep_starts)
             th, d = search(np.vstack([best.theta, lag_starts.thetas]), ["no lag", *lag_starts.labels], None, "lag")
             cand = fold_check(data, evaluate(data, th, d), lag_starts, trace, search)
@@ -330,6 +337,18 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             if not gain or with_lag.train_rms <= TUNE_ROUND_NOISES * data.noise:
                 break
         trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s
+        if waits and with_lag.train_rms > WAIT_MISS * best.train_rms:
+            # the servo did not cut the miss of the model without it decisively: that model is escalated now,
+            # from where it stood before its fold check (as without the wait), the yardstick the servo must beat
+            through_data, pass_record = data, {k: getattr(trace, k) for k in LAG_PASS_FIELDS}
+            data = plain
+            fresh_record()
+            best = settle(raw, True)
+            kept_trace = {k: getattr(trace, k) for k in LAG_PASS_FIELDS}
+            data = through_data
+            for k, v in pass_record.items():
+                setattr(trace, k, v)
+            waits = False
         trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
         if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask], lag.parameters):
             best = with_lag
@@ -340,7 +359,8 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             for k, v in kept_trace.items():
                 setattr(trace, k, v)
             if waits:
-                best = settle(best, True)
+                fresh_record()
+                best = settle(raw, True)
     err = best.w_pred - data.w
     held_rms = float(np.sqrt(np.mean(err[data.held_mask] ** 2))) if data.held_mask.any() else float("nan")
     unc = uncertainty(data, best, exc)
