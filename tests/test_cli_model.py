@@ -184,6 +184,40 @@ def test_predict_plot_draws_the_prediction_against_the_log(workdir, tmp_path, mo
     assert {ax.get_xlabel() for ax in fig.axes} >= {"t (s)", "tendon u (mm)"}
 
 
+def test_with_a_servo_in_the_model_the_loops_are_drawn_against_the_travel_through_it(workdir, tmp_path, monkeypatch):
+    """A closed loop's command jumps: the loops' axis is the tendon travel the model is fed, not the command."""
+    from matplotlib.figure import Figure
+
+    from warpbridge.model.effects import Effects, servo_travel
+
+    figures = []
+    save = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), save(self, *a, **k))[1])
+    m = json.loads((workdir / "model.json").read_text())
+    m["effects"] = {"servo_lag": {"servo_tau_s": 0.04, "servo_rate_mm_s": 60.0}}
+    (tmp_path / "servo.json").write_text(json.dumps(m))
+    t = np.arange(0.0, 8.0, 0.01)
+    u = np.repeat(np.random.default_rng(3).uniform(-4.0, 4.0, 16), 50)  # a step every 0.5 s
+    warp = 2.0 * servo_travel(t, u, 0.04, 60.0, float(u[0]))
+    np.savetxt(tmp_path / "steps.csv", np.column_stack([t, u, warp]), delimiter=",", header="t,u,warp",
+               comments="", fmt="%.9g")
+    assert run("predict", tmp_path / "steps.csv", "--model", tmp_path / "servo.json", "-o", tmp_path / "p.csv",
+               "--plot", tmp_path / "p.png") == 0
+    assert run("identify", tmp_path / "steps.csv", "-o", tmp_path / "m.json", "--plot", tmp_path / "id.png",
+               "--quiet", "--maxiter", 20) == 0
+    kept = Effects(**json.loads((tmp_path / "m.json").read_text())["effects"].get("servo_lag", {}))
+    assert kept.has_servo  # the steps are followed by a servo: identify keeps one
+    through = {tmp_path / "servo.json": servo_travel(t, u, 0.04, 60.0, float(u[0])),
+               tmp_path / "m.json": servo_travel(t, u, kept.servo_tau_s, kept.servo_rate_mm_s, float(u[0]),
+                                                 kept.servo_deadband_mm)}
+    for fig, x in zip(figures, through.values(), strict=True):
+        loops = [ax for ax in fig.axes if "u -> warp" in ax.get_title()]
+        assert loops and all("through its servo" in ax.get_xlabel() for ax in loops)
+        drawn = np.concatenate([ax.lines[0].get_xdata() for ax in loops])
+        np.testing.assert_allclose(drawn, x, atol=1e-9)
+        assert np.abs(np.diff(drawn)).max() < 0.5 * np.abs(np.diff(u)).max()  # no jump drawn across the loop
+
+
 def test_a_log_starting_with_the_tendon_loaded_is_predicted_from_its_first_sample(workdir, tmp_path, capsys):
     """The target: a correct model's whole-log RMS within 1.1x of its RMS after the first 5 s."""
     assert run("simulate", "-o", tmp_path / "long.csv", "--duration", 40, "--rate", 200, "--seed", 6) == 0

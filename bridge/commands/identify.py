@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from warpbridge.bridge.commands.logfile import LogData, read_log
 from warpbridge.bridge.commands.modelio import save_model
-from warpbridge.bridge.commands.plots import plot_identification
+from warpbridge.bridge.commands.plots import loop_axis, plot_identification
 from warpbridge.bridge.errors import UserError
 from warpbridge.model.diagnosis.check import input_check
 from warpbridge.model.diagnosis.start import bench_known_error
@@ -175,8 +175,9 @@ def main(args: argparse.Namespace) -> int:
             raise UserError(f"--check {args.check}: {e}") from None
     save_model(args.output, mf)
     if args.plot:
-        plot_identification(args.plot, data.t, data.u, data.warp, res.w_pred, res.heldout_mask,
-                            title=f"{Path(args.log).name}: identified generalized Bouc-Wen model")
+        x, xlabel = loop_axis(mf.effects, data.t, data.u, data.u_sent)
+        plot_identification(args.plot, data.t, x, data.warp, res.w_pred, res.heldout_mask,
+                            title=f"{Path(args.log).name}: identified generalized Bouc-Wen model", xlabel=xlabel)
     ratio = res.heldout_rms / res.noise if res.noise > 0 else float("nan")
     split = res.split_time
     print(f"identified {Path(args.log).name} ({len(data)} samples, {data.t[-1] - data.t[0]:.1f} s) in {elapsed:.1f} s")

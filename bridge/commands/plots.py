@@ -9,6 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbridge.model.effects import PULLED, Effects, apply_input_effects
+
+COMMAND_LABEL = "tendon u (mm)"
+INPUT_STAGES = (("delay", "delay"), ("servo_lag", "servo"), ("rate_limit", "rate limit"), ("backlash", "backlash"))
 
 def _pyplot():
     import matplotlib
@@ -35,26 +39,42 @@ def _save(fig, path: str | os.PathLike) -> None:
             tmp.unlink()
 
 
-def _loop(ax, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray, title: str) -> None:
+def loop_axis(effects: Effects, t: np.ndarray, u: np.ndarray, sent: np.ndarray | None = None,
+              slack_side: float = PULLED) -> tuple[np.ndarray, str]:
+    """The loops' x axis and its label: the tendon travel the model is fed (the command through its delay,
+    servo, rate limit and play), or the command itself when the model has none of these. A closed loop's
+    command jumps at every setpoint step and its PI's jitter; plotted against it the loop is a scribble, through
+    the servo it is the loop the wing went round."""
+    x = apply_input_effects(effects, t, u, slack_side, sent)
+    if np.array_equal(x, np.asarray(u, dtype=np.float64)):
+        return x, COMMAND_LABEL
+    active = effects.active()
+    names = [text for name, text in INPUT_STAGES if name in active]
+    if effects.capstan_pull_ratio > 0 or effects.capstan_release_ratio > 0:
+        names.append("capstan stall")
+    return x, f"tendon travel into the model (mm): u through its {', '.join(names) or 'input effects'}"
+
+
+def _loop(ax, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray, title: str, xlabel: str) -> None:
     ax.plot(u, w, ".", ms=1.5, color="0.55", label="logged warp")
     ax.plot(u, w_pred, "-", lw=0.8, color="C3", label=f"model (RMS {_rms(w - w_pred):.3f} deg)")
     ax.set_title(title)
-    ax.set_xlabel("tendon u (mm)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("warp (deg)")
     ax.legend(loc="upper left", fontsize="small")
 
 
 def plot_identification(path: str | os.PathLike, t: np.ndarray, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray,
-                        heldout: np.ndarray, title: str = "") -> None:
-    """Loops (u vs warp, logged and model) for the training and held-out parts, the warp in time with
-    the held-out part shaded, and the residual."""
+                        heldout: np.ndarray, title: str = "", xlabel: str = COMMAND_LABEL) -> None:
+    """Loops (u vs warp, logged and model; ``u`` the loops' axis, ``loop_axis``) for the training and held-out
+    parts, the warp in time with the held-out part shaded, and the residual."""
     plt = _pyplot()
     heldout = np.asarray(heldout, bool)
     parts = [(m, name) for m, name in ((~heldout, "training part"), (heldout, "held-out part")) if m.any()]
     fig = plt.figure(figsize=(12, 8), layout="constrained")
     grid = fig.add_gridspec(2, len(parts))
     for k, (mask, name) in enumerate(parts):
-        _loop(fig.add_subplot(grid[0, k]), u[mask], w[mask], w_pred[mask], f"{name}: u -> warp")
+        _loop(fig.add_subplot(grid[0, k]), u[mask], w[mask], w_pred[mask], f"{name}: u -> warp", xlabel)
     bottom = grid[1, :].subgridspec(2, 1, height_ratios=(2, 1))
     ax = fig.add_subplot(bottom[0])
     ax.plot(t, w, color="0.55", lw=0.6, label="logged warp")
@@ -75,8 +95,9 @@ def plot_identification(path: str | os.PathLike, t: np.ndarray, u: np.ndarray, w
 
 
 def plot_prediction(path: str | os.PathLike, t: np.ndarray, u: np.ndarray, w: np.ndarray, w_pred: np.ndarray,
-                    title: str = "") -> None:
-    """The prediction against the logged warp: time series, loop (u vs warp) and residual, with the RMS."""
+                    title: str = "", xlabel: str = COMMAND_LABEL) -> None:
+    """The prediction against the logged warp: time series, loop (u vs warp; ``u`` the loop's axis,
+    ``loop_axis``) and residual, with the RMS."""
     plt = _pyplot()
     rms = _rms(w - w_pred)
     fig = plt.figure(figsize=(12, 8), layout="constrained")
@@ -93,7 +114,7 @@ def plot_prediction(path: str | os.PathLike, t: np.ndarray, u: np.ndarray, w: np
     ax2.set_xlabel("t (s)")
     ax2.set_ylabel("residual (deg)")
     ax2.legend(loc="upper right", fontsize="small")
-    _loop(fig.add_subplot(grid[:, 1]), u, w, w_pred, "loop: u -> warp")
+    _loop(fig.add_subplot(grid[:, 1]), u, w, w_pred, "loop: u -> warp", xlabel)
     fig.suptitle(f"{title}: RMS {rms:.3f} deg over {t.size} samples" if title else
                  f"prediction: RMS {rms:.3f} deg over {t.size} samples")
     _save(fig, path)

@@ -98,9 +98,10 @@ def main(args: argparse.Namespace) -> int:
             msg += f"; {_rms(data.warp[late] - w_pred[late]):.4f} deg after its first {SETTLE_S:g} s"
         print(msg)
         if args.plot:
-            from warpbridge.bridge.commands.plots import plot_prediction
+            from warpbridge.bridge.commands.plots import loop_axis, plot_prediction
 
-            plot_prediction(args.plot, data.t[ok], data.u[ok], data.warp[ok], w_pred[ok],
-                            title=f"{Path(args.log).name} predicted by {Path(str(args.model)).name}")
+            x, xlabel = loop_axis(plant.effects, data.t, data.u, data.u_sent, plant.slack_side)
+            plot_prediction(args.plot, data.t[ok], x[ok], data.warp[ok], w_pred[ok],
+                            title=f"{Path(args.log).name} predicted by {Path(str(args.model)).name}", xlabel=xlabel)
             print(f"wrote {args.plot}")
     return 0

@@ -13,9 +13,9 @@ trial shapes are a deterministic, well-spread design: a scrambled Sobol' sequenc
 with a fixed seed, the paper's shape and the prior's; the straight line and the
 quadratic without hysteresis (az = 0) are inside every solve. The best
 distinct shapes are handed on, in the search's parameter vector (``space``),
-to the refinement on the forward warp error. Steps 3 (``start_design``) and 4 (``linear_solve``) of ``identify``
-run it on a log's ``LogData``; the straight line and the quadratic backbone are
-appended to the starts it hands on.
+to the refinement on the forward warp error. Steps 3 (``start_design``) and 4
+(``linear_solve``) of ``identify`` run it on a log's ``LogData``; the straight
+line and the quadratic backbone are appended to the starts it hands on.
 
 The warp path the state is integrated over is the measured warp with its
 jitter removed: every reversal smaller than a few noise deviations would

@@ -33,7 +33,9 @@ this package's modules (named in brackets where a step's name is not its module'
    input-side cost by ``LAG_GAIN_SURE`` (or by ``LAG_GAIN`` and a short refinement of the final model
    without it fits better through it), is put in front of the model once the model without it is final
    (steps 5-8; with a servo the scan is sure of, that model is only a start and a yardstick, and its
-   escalation waits until the servo is refused; when the scan proposed none, a lag of ``LAG_PROBE_S`` is
+   escalation waits for the model through the servo, running only when that is refused or misses the
+   training part by more than ``WAIT_MISS`` of what the model without it misses; when the scan proposed
+   none, a lag of ``LAG_PROBE_S`` is
    checked the same way, and goes on when that check or the model's miss of the training part asks for
    it): the design is solved again through
    it and refined, with the model found without it as one more start, checked for a fold and against the
@@ -337,9 +339,14 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             if not gain or with_lag.train_rms <= TUNE_ROUND_NOISES * data.noise:
                 break
         trace.lag_s, trace.lag_rate_mm_s = lag.tau_s, lag.rate_mm_s
-        if waits and with_lag.train_rms > WAIT_MISS * best.train_rms:
-            # the servo did not cut the miss of the model without it decisively: that model is escalated now,
-            # from where it stood before its fold check (as without the wait), the yardstick the servo must beat
+
+        def pays() -> bool:
+            return lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask],
+                            lag.parameters)
+        if waits and (with_lag.train_rms > WAIT_MISS * best.train_rms or not pays()):
+            # the servo is refused, or did not cut the miss of the model without it decisively: that model is
+            # escalated now, from where it stood before its fold check (as without the wait), the yardstick the
+            # servo is judged against
             through_data, pass_record = data, {k: getattr(trace, k) for k in LAG_PASS_FIELDS}
             data = plain
             fresh_record()
@@ -348,9 +355,8 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             data = through_data
             for k, v in pass_record.items():
                 setattr(trace, k, v)
-            waits = False
         trace.lag_train_rms = (best.train_rms, with_lag.train_rms)
-        if lag_pays(best.train_rms, with_lag.train_rms, (best.w_pred - plain.w)[plain.train_mask], lag.parameters):
+        if pays():
             best = with_lag
         else:
             log.info("servo %s not kept: the model fits the training part no better with it (%.4g deg "
@@ -358,9 +364,6 @@ def identify(t, u, w, *, heldout_frac: float = 0.25, seed: int = 0, popsize: int
             data = plain
             for k, v in kept_trace.items():
                 setattr(trace, k, v)
-            if waits:
-                fresh_record()
-                best = settle(raw, True)
     err = best.w_pred - data.w
     held_rms = float(np.sqrt(np.mean(err[data.held_mask] ** 2))) if data.held_mask.any() else float("nan")
     unc = uncertainty(data, best, exc)
