@@ -207,10 +207,9 @@ def test_with_a_servo_in_the_model_the_loops_are_drawn_against_the_travel_throug
                "--quiet", "--maxiter", 20) == 0
     kept = Effects(**json.loads((tmp_path / "m.json").read_text())["effects"].get("servo_lag", {}))
     assert kept.has_servo  # the steps are followed by a servo: identify keeps one
-    through = {tmp_path / "servo.json": servo_travel(t, u, 0.04, 60.0, float(u[0])),
-               tmp_path / "m.json": servo_travel(t, u, kept.servo_tau_s, kept.servo_rate_mm_s, float(u[0]),
-                                                 kept.servo_deadband_mm)}
-    for fig, x in zip(figures, through.values(), strict=True):
+    through = [servo_travel(t, u, 0.04, 60.0, float(u[0])),  # predict's figure, then identify's
+               servo_travel(t, u, kept.servo_tau_s, kept.servo_rate_mm_s, float(u[0]), kept.servo_deadband_mm)]
+    for fig, x in zip(figures, through, strict=True):
         loops = [ax for ax in fig.axes if "u -> warp" in ax.get_title()]
         assert loops and all("through its servo" in ax.get_xlabel() for ax in loops)
         drawn = np.concatenate([ax.lines[0].get_xdata() for ax in loops])

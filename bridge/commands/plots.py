@@ -14,6 +14,7 @@ from warpbridge.model.effects import PULLED, Effects, apply_input_effects
 COMMAND_LABEL = "tendon u (mm)"
 INPUT_STAGES = (("delay", "delay"), ("servo_lag", "servo"), ("rate_limit", "rate limit"), ("backlash", "backlash"))
 
+
 def _pyplot():
     import matplotlib
 
