@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ from warpbridge.model.diagnosis import diagnose
 from warpbridge.model.diagnosis.blocks import make_split
 from warpbridge.model.diagnosis.left import left_over, left_over_note
 from warpbridge.model.diagnosis.options import DiagnoseOptions
-from warpbridge.model.effects import Effects
+from warpbridge.model.effects import Effects, servo_travel
 from warpbridge.model.excitation import filtered_random
 from warpbridge.model.modelfile import FitQuality, ModelFile
 from warpbridge.model.plant import Plant
@@ -111,3 +113,16 @@ def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_
     assert any("moves faster there" in line for line in d.report["summary"])
     plot_diagnosis(tmp_path / "r.png", d)  # the figure marks that block and shows its window
     assert (tmp_path / "r.png").stat().st_size > 10_000
+    # with the rig's servo in the model, the loops are drawn against the travel through it (not the field's effects)
+    from matplotlib.figure import Figure
+
+    figures = []
+    save = Figure.savefig
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), save(self, *a, **k))[1])
+        rig = replace(d.model.effects, servo_tau_s=0.05, servo_rate_mm_s=40.0, rate_mm_s=rate)
+        plot_diagnosis(tmp_path / "servo.png", replace(d, model=replace(d.model, effects=rig)))
+    (loops,) = [ax for ax in figures[0].axes if ax.get_title().startswith("loops")]
+    assert loops.get_xlabel().endswith("u through its servo")
+    sc = d.split.score
+    np.testing.assert_allclose(loops.lines[0].get_xdata(), servo_travel(t, u, 0.05, 40.0, float(u[0]))[sc])

@@ -6,7 +6,9 @@ import os
 
 import numpy as np
 
+from warpbridge.bridge.commands.plots import loop_axis
 from warpbridge.model.diagnosis import Diagnosis
+from warpbridge.model.effect_registry import RIG_EFFECTS
 
 
 def _pyplot():
@@ -77,10 +79,13 @@ def plot_diagnosis(path: str | os.PathLike, d: Diagnosis, title: str = "") -> No
     ax.legend(fontsize=8)
     ax = axes[1, 0]
     sc = d.split.score
-    ax.plot(d.u[sc], w[sc], ".", ms=1.0, color="0.6", label="measured")
-    ax.plot(d.u[sc], d.w_nominal[sc], ".", ms=0.8, color="C3", label="nominal")
-    ax.plot(d.u[sc], d.w_augmented[sc], ".", ms=0.8, color="C2", label="augmented")
-    ax.set_xlabel("tendon u (mm)")
+    # against the travel through the rig's servo, which both models share (the field's effects are the models'
+    # difference): a closed loop's command jumps, the travel through the servo is the loop the wing went round
+    x, xlabel = loop_axis(d.model.effects.only(RIG_EFFECTS), t, d.u)
+    ax.plot(x[sc], w[sc], ".", ms=1.0, color="0.6", label="measured")
+    ax.plot(x[sc], d.w_nominal[sc], ".", ms=0.8, color="C3", label="nominal")
+    ax.plot(x[sc], d.w_augmented[sc], ".", ms=0.8, color="C2", label="augmented")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("warp (deg)")
     ax.set_title("loops on the scored blocks")
     ax.legend(fontsize=8, markerscale=8)
