@@ -122,6 +122,12 @@ def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_
         mp.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), save(self, *a, **k))[1])
         rig = replace(d.model.effects, servo_tau_s=0.05, servo_rate_mm_s=40.0, rate_mm_s=rate)
         plot_diagnosis(tmp_path / "servo.png", replace(d, model=replace(d.model, effects=rig)))
+        for noise in (True, False):  # nothing named: the title says noise only when the residual tests say so
+            plot_diagnosis(tmp_path / "none.png", replace(d, report=d.report | {"verdict": [],
+                                                                              "residual_is_noise": noise}))
+    assert figures[0].get_suptitle() == f"verdict: {', '.join(d.report['verdict'])}"
+    assert figures[1].get_suptitle() == "verdict: none: the residual is noise"
+    assert "noise" not in figures[2].get_suptitle()
     (loops,) = [ax for ax in figures[0].axes if ax.get_title().startswith("loops")]
     assert loops.get_xlabel().endswith("u through its servo")
     sc = d.split.score

@@ -118,7 +118,8 @@ def plot_diagnosis(path: str | os.PathLike, d: Diagnosis, title: str = "") -> No
     ax.set_title(f"held-out RMS {sh['heldout_rms_before_deg']:.3f} -> {sh['heldout_rms_after_deg']:.3f} deg"
                  + (f", gap closed {gc:.0%}" if gc is not None else ""))
     ax.legend(fontsize=8)
-    verdict = ", ".join(rep["verdict"]) or "[] (noise only)"
+    verdict = ", ".join(rep["verdict"]) or ("none: the residual is noise" if rep.get("residual_is_noise") else
+                                             "none named (the report says why)")
     fig.suptitle(f"{title}\nverdict: {verdict}" if title else f"verdict: {verdict}")
     fig.savefig(path, dpi=110)
     plt.close(fig)
