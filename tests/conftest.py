@@ -89,3 +89,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         return item.get_closest_marker("slow") is None
 
     items.sort(key=later)  # stable: slow first, otherwise as collected
+
+
+@pytest.fixture
+def saved_figures(monkeypatch: pytest.MonkeyPatch) -> list:
+    """Every matplotlib figure the test saves, in order (each is still written to its file)."""
+    from matplotlib.figure import Figure
+
+    figures: list = []
+    save = Figure.savefig
+
+    def keep(self, *a, **k):
+        figures.append(self)
+        return save(self, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    return figures

@@ -158,17 +158,8 @@ def test_outputs_that_cannot_be_written_are_refused_before_any_work(argv, workdi
     assert not (tmp_path / "nope").exists() and not list(tmp_path.glob("*.*"))  # nothing written
 
 
-def test_predict_plot_draws_the_prediction_against_the_log(workdir, tmp_path, monkeypatch, recwarn):
-    from matplotlib.figure import Figure
-
-    figures = []
-    save = Figure.savefig
-
-    def keep(self, *a, **k):
-        figures.append(self)
-        return save(self, *a, **k)
-
-    monkeypatch.setattr(Figure, "savefig", keep)
+def test_predict_plot_draws_the_prediction_against_the_log(workdir, tmp_path, saved_figures, recwarn):
+    figures = saved_figures
     assert run("predict", workdir / "check.csv", "--model", workdir / "model.json", "-o", tmp_path / "p.csv",
                "--plot", tmp_path / "p.png") == 0
     assert (tmp_path / "p.png").stat().st_size > 10_000
@@ -184,15 +175,12 @@ def test_predict_plot_draws_the_prediction_against_the_log(workdir, tmp_path, mo
     assert {ax.get_xlabel() for ax in fig.axes} >= {"t (s)", "tendon u (mm)"}
 
 
-def test_with_a_servo_in_the_model_the_loops_are_drawn_against_the_travel_through_it(workdir, tmp_path, monkeypatch):
+def test_with_a_servo_in_the_model_the_loops_are_drawn_against_the_travel_through_it(workdir, tmp_path,
+                                                                                     saved_figures):
     """A closed loop's command jumps: the loops' axis is the tendon travel the model is fed, not the command."""
-    from matplotlib.figure import Figure
-
     from warpbridge.model.effects import Effects, servo_travel
 
-    figures = []
-    save = Figure.savefig
-    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), save(self, *a, **k))[1])
+    figures = saved_figures
     m = json.loads((workdir / "model.json").read_text())
     m["effects"] = {"servo_lag": {"servo_tau_s": 0.04, "servo_rate_mm_s": 60.0}}
     (tmp_path / "servo.json").write_text(json.dumps(m))

@@ -96,7 +96,7 @@ def fast_excursion_log(seed: int = 5):
 
 
 @pytest.mark.slow
-def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_path):
+def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_path, saved_figures):
     t, u, tc, sp = fast_excursion_log()
     speed = np.abs(np.gradient(u, t))
     near = np.abs(t - tc) < 0.5
@@ -114,17 +114,11 @@ def test_a_slew_limit_reached_in_one_scored_block_is_reported_where_it_lies(tmp_
     plot_diagnosis(tmp_path / "r.png", d)  # the figure marks that block and shows its window
     assert (tmp_path / "r.png").stat().st_size > 10_000
     # with the rig's servo in the model, the loops are drawn against the travel through it (not the field's effects)
-    from matplotlib.figure import Figure
-
-    figures = []
-    save = Figure.savefig
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), save(self, *a, **k))[1])
-        rig = replace(d.model.effects, servo_tau_s=0.05, servo_rate_mm_s=40.0, rate_mm_s=rate)
-        plot_diagnosis(tmp_path / "servo.png", replace(d, model=replace(d.model, effects=rig)))
-        for noise in (True, False):  # nothing named: the title says noise only when the residual tests say so
-            plot_diagnosis(tmp_path / "none.png", replace(d, report=d.report | {"verdict": [],
-                                                                              "residual_is_noise": noise}))
+    rig = replace(d.model.effects, servo_tau_s=0.05, servo_rate_mm_s=40.0, rate_mm_s=rate)
+    plot_diagnosis(tmp_path / "servo.png", replace(d, model=replace(d.model, effects=rig)))
+    for noise in (True, False):  # nothing named: the title says noise only when the residual tests say so
+        plot_diagnosis(tmp_path / "none.png", replace(d, report=d.report | {"verdict": [], "residual_is_noise": noise}))
+    figures = saved_figures[1:]  # after the first figure above
     assert figures[0].get_suptitle() == f"verdict: {', '.join(d.report['verdict'])}"
     assert figures[1].get_suptitle() == "verdict: none: the residual is noise"
     assert "noise" not in figures[2].get_suptitle()
