@@ -11,7 +11,10 @@ the same load), each with the defaults a user gets (no prior, no delay):
   runs, closed loop (ff+PI against the hysteresis, sensor noise, the servo's lag), for the
   Bouc-Wen wing and ``--plant sheath``, several scenarios and seeds (recorded into ``--sitl-dir``
   when missing), scored on their held-out last quarter; beside them the open-loop bench log of
-  the same plant (``sitl.wing.bench_log``, 90 s at 200 Hz) identified the same way;
+  the same plant (``sitl.wing.bench_log``, 90 s at 200 Hz) identified the same way, and per
+  closed-loop log the same run's true tendon travel against the rig sensor's warp (what a tendon
+  encoder would log; ``rig.npz`` of the run, seed 0, no servo in front), which has the run's own
+  excitation without the command, the PI or the servo between it and the warp;
 - ``realdata``: the measured tendon-sheath logs of ``../shared/realdata/tsm-kaist`` (read, never
   copied), scored on their held-out last quarter and on the other logs of their series (the
   other sine amplitudes of configuration 0; the other bends), predicted whole from their first
@@ -55,6 +58,7 @@ from warpbridge.model import identification as current  # noqa: E402
 from warpbridge.model.boucwen import BoucWenParams, forward  # noqa: E402
 from warpbridge.model.initial_state import estimate_z0  # noqa: E402
 from warpbridge.model.signals import linear_fit, noise_floor  # noqa: E402
+from warpbridge.sitl.flex_sensor import FlexSensorSpec  # noqa: E402
 from warpbridge.sitl.like_for_like import bench_params, rigged, sheath_spec  # noqa: E402
 from warpbridge.sitl.sheath import SheathPlant  # noqa: E402
 from warpbridge.sitl.wing import WingSpec, bench_log  # noqa: E402
@@ -177,8 +181,25 @@ def sitl_logs(d: Path, seeds: tuple[int, ...] = SITL_SEEDS) -> list[dict]:
                 for wing in ("left", "right"):
                     data = read_log(d / f"{plant}-{sc}-s{seed}" / "bridge-cycles.csv", wing=wing)
                     out.append({"set": "sitl", "log": f"{plant} {sc} s{seed} {wing}", "plant": plant, "t": data.t,
-                                "u": data.u, "w": data.warp, "others": [], "bench": False, "sent": data.u_sent})
+                                "u": data.u, "w": data.warp, "others": [], "bench": False, "sent": data.u_sent,
+                                "rig": (d / f"{plant}-{sc}-s{seed}" / "rig.npz", wing)})
     return out
+
+
+def true_travel_fit(rig: Path, wing: str) -> dict | None:
+    """Seed-0 identification, without a servo in front, of a SITL run's true tendon travel against the warp its
+    sensor read (``rig.npz``: per sensor read the time, counts, true warp, tendon mm and airspeed; counts to deg
+    through the rig's calibration table), scored on the held-out last quarter; None when the run has no rig
+    record."""
+    if not rig.is_file():
+        return None
+    reads = np.load(rig)[f"{wing}_reads"].reshape(-1, 5)
+    t, u, w = reads[:, 0], reads[:, 3], np.asarray(FlexSensorSpec().deg_of_counts(reads[:, 1]), dtype=np.float64)
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    t0 = time.perf_counter()
+    r = current.identify(t[keep], u[keep], w[keep], seed=0, max_lag_s=0.0)
+    return {"heldout_rms_deg": r.heldout_rms, "train_rms_deg": r.train_rms, "seconds": time.perf_counter() - t0,
+            "samples": int(keep.sum())}
 
 
 def realdata_logs(d: Path) -> list[dict]:
@@ -271,6 +292,8 @@ def main() -> None:
                 if key not in rec["runs"]:
                     rec["runs"][key] = runs
                     rec.setdefault("merged_from", {})[key] = merge_name
+            if "rig" in lg and "true_travel" not in rec:
+                rec["true_travel"] = true_travel_fit(*lg["rig"])
             summarise(rec, bool(lg["others"]))
             out["logs"].append(rec)
             print(f"{lg['set']}  {lg['log']}  (kept from {args.resume})", flush=True)
@@ -281,6 +304,8 @@ def main() -> None:
                "line_other_rms_deg": line_oth, "open_loop_bench": bool(lg.get("bench", False)), "runs": {}}
         n = {"new": args.seeds_bench if lg["set"] == "bench" and args.seeds_bench else args.seeds,
              "old": old_seeds[lg["set"]]}
+        if "rig" in lg:
+            rec["true_travel"] = true_travel_fit(*lg["rig"])
         for key in versions:
             rec["runs"][key] = []
         for key, runs in merged.get((lg["set"], lg["log"]), {}).get("runs", {}).items():
@@ -367,6 +392,14 @@ def print_summary(out: dict, versions: list[str]) -> None:
                     print(f"sitl {plant} {key}: closed-loop held-out (seed 0) / open-loop bench held-out (median "
                           f"seed): median {statistics.median(ratio):.2f}, max {max(ratio):.2f}; within 1.5x on "
                           f"{sum(1 for x in ratio if x <= 1.5)}/{len(ratio)}")
+                    own = [(r[key]["default_heldout_rms_deg"], r["true_travel"]["heldout_rms_deg"]) for r in closed
+                           if r.get("true_travel")]
+                    if own and key == "new":  # the reference is the current code's fit
+                        ratio = [a / b for a, b in own]
+                        print(f"sitl {plant} {key}: closed-loop held-out (seed 0) / the same run's true tendon travel "
+                              f"held-out: median {statistics.median(ratio):.2f}, max {max(ratio):.2f}; that "
+                              f"over the open-loop bench: {min(b for _, b in own) / bench[0][key]['median']:.2f}-"
+                              f"{max(b for _, b in own) / bench[0][key]['median']:.2f}x")
 
 if __name__ == "__main__":
     main()

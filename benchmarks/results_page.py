@@ -511,6 +511,16 @@ def _closed_over_bench(rec: dict, bench: dict | None) -> str:
     return (cells[0] or "-") + (f" ({cells[1]})" if cells[1] else "")
 
 
+def _true_travel(rec: dict) -> str:
+    """A closed-loop log's reference: the held-out RMS of the same run's true tendon travel (seed 0, no servo), and
+    the log's seed-0 held-out over it."""
+    ref = rec.get("true_travel")
+    a = (rec.get("new") or {}).get("default_heldout_rms_deg")
+    if not ref or a is None:
+        return "-"
+    return f"{_f3(ref['heldout_rms_deg'])} ({a / ref['heldout_rms_deg']:.2f}x)"
+
+
 def _servo(rec: dict) -> str:
     """The servos the seeds' fits kept, each once: the lag in ms, and the speed cap in mm/s after an at sign."""
     kept = set()
@@ -537,8 +547,21 @@ def _closed_loop_line(recs: list[dict]) -> list[str]:
                              f"{max(ratios):.2f}x)")
         if cells:
             parts.append(f"{plant} {cells[0]}" + (f", the old code {cells[1]}" if len(cells) > 1 else ""))
-    return [f"Closed-loop logs within 1.5x of their plant's open-loop bench log: {'; '.join(parts)}.", ""] if parts \
-        else []
+    own = []
+    for plant in dict.fromkeys(r["plant"] for r in recs):
+        bench = ((next((r for r in recs if r["plant"] == plant and r["open_loop_bench"]), None) or {}).get("new")
+                 or {}).get("median")
+        pairs = [(a, r["true_travel"]["heldout_rms_deg"]) for r in recs if r["plant"] == plant and r.get("true_travel")
+                 and (a := (r.get("new") or {}).get("default_heldout_rms_deg")) is not None]
+        if pairs and bench:
+            ratios = [a / b for a, b in pairs]
+            refs = [b / bench for _, b in pairs]
+            own.append(f"{plant} median {np.median(ratios):.2f}x, max {max(ratios):.2f}x (the true travel's own fit "
+                       f"{min(refs):.2f}-{max(refs):.2f}x the open-loop bench log)")
+    lines = [f"Closed-loop logs within 1.5x of their plant's open-loop bench log: {'; '.join(parts)}."] if parts else []
+    if own:
+        lines.append(f"Against the same run's true tendon travel: {'; '.join(own)}.")
+    return [" ".join(lines), ""] if lines else []
 
 
 def _train_spread(r: dict) -> float | None:
@@ -552,7 +575,8 @@ def _seed_rows(recs: list[dict], kind: str) -> tuple[list[str], list[list[str]]]
     header = ["log", "noise floor", "baseline: straight line", "held-out min / median / max", "spread (max/min)",
               "training spread", "seed 0 / old code's best (ratio)", "s/fit, median (old)"]
     if kind == "sitl":
-        header += ["closed loop / open-loop bench (old)", "servo kept: lag ms @ speed cap mm/s"]
+        header += ["closed loop / open-loop bench (old)", "same run's true tendon travel (closed loop over it)",
+                   "servo kept: lag ms @ speed cap mm/s"]
     if kind == "realdata":
         header += ["other logs, median seed (line)"]
     bench = {r["plant"]: r for r in recs if r["open_loop_bench"]}
@@ -565,7 +589,7 @@ def _seed_rows(recs: list[dict], kind: str) -> tuple[list[str], list[list[str]]]
         row = [r["log"], _f3(r["noise_deg"]), _f3(r["line_heldout_rms_deg"]), held, spread,
                "-" if ts is None else f"{ts:.3f}", _over_old(r), _secs(r)]
         if kind == "sitl":
-            row += [_closed_over_bench(r, bench.get(r["plant"])), _servo(r)]
+            row += [_closed_over_bench(r, bench.get(r["plant"])), _true_travel(r), _servo(r)]
         if kind == "realdata":
             other = (new.get("other") or {}).get("median")
             row += [f"{_f3(other)} ({_f3(r['line_other_rms_deg'])})"]
@@ -625,8 +649,10 @@ def identify_seeds_section(inp: Inputs) -> list[str]:
            + ("the old code's, in brackets, were measured in an earlier run of the same logs "
               f"(`{merged}`), so compare them only roughly. " if merged else "in brackets the old code's. ")
            + "For the closed-loop logs, the seed-0 held-out over the median of the same plant's open-loop bench log "
-           "(the target is within 1.5x), and the servo each seed's fit kept in front of the model (its lag, and "
-           "its speed cap where it has one)"
+           "(the target is within 1.5x); the same run's true tendon travel against the warp its sensor read (what "
+           "a tendon encoder would log: the run's own excitation, with no command, PI or servo between them) "
+           "identified the same way (seed 0, no servo), and the log's seed-0 held-out over it; and the servo each "
+           "seed's fit kept in front of the model (its lag, and its speed cap where it has one)"
            + ("; `warpbridge sitl` flies on the wall clock, so each run records its closed-loop logs afresh and "
               "two recordings of a scenario and seed differ a little: the old code's figures there are of an "
               "earlier recording" if merged and "sitl" in sets else "") + ". For the "

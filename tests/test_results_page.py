@@ -234,3 +234,28 @@ def test_the_seed_table_gives_the_training_spread_beside_the_held_out_one(tmp_pa
     assert rows["flat valley"][5] == "1.006" and rows["flat valley"][4] == "1.067"
     assert rows["two basins"][5] == "1.300"
     assert rows["one answer"][5] == "1.002"
+
+
+def test_closed_loop_logs_are_set_against_their_own_runs_true_tendon_travel(tmp_path):
+    """Beside the plant's open-loop bench log, each closed-loop log gets the fit of its own run's true tendon travel:
+    a log at 1.6x the bench but 1.1x its own run's travel is the excitation's, not the closed loop's."""
+    bench = seed_log("sheath open-loop bench", [0.25, 0.25], [0.30, 0.30]) | {"set": "sitl", "plant": "sheath"}
+    sweep = seed_log("sheath sweep s0 left", [0.24, 0.25], [0.48, 0.50]) | {
+        "set": "sitl", "plant": "sheath", "open_loop_bench": False,
+        "true_travel": {"heldout_rms_deg": 0.40, "train_rms_deg": 0.23, "seconds": 1.0, "samples": 4000}}
+    steps = seed_log("sheath steps s0 left", [0.06, 0.06], [0.09, 0.09]) | {
+        "set": "sitl", "plant": "sheath", "open_loop_bench": False,
+        "true_travel": {"heldout_rms_deg": 0.10, "train_rms_deg": 0.05, "seconds": 1.0, "samples": 4000}}
+    path = tmp_path / "identify-seeds.json"
+    path.write_text(json.dumps({"seeds": 2, "baseline": "abc1234", "merged_from": None, "finished": "x",
+                                "logs": [bench, sweep, steps]}), encoding="utf-8")
+    page = "\n".join(results_page.identify_seeds_section(SimpleNamespace(identify_seeds=path)))
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in page.splitlines()
+            if line.startswith("| sheath")}
+    assert rows["sheath sweep s0 left"][9] == "0.400 (1.20x)"
+    assert rows["sheath steps s0 left"][9] == "0.100 (0.90x)"
+    assert rows["sheath open-loop bench"][9] == "-"
+    line = next(x for x in page.splitlines() if x.startswith("Closed-loop logs within 1.5x"))
+    assert "sheath 1/2 (median 0.95x, max 1.60x)" in line
+    assert ("Against the same run's true tendon travel: sheath median 1.05x, max 1.20x (the true travel's own fit "
+            "0.33-1.33x the open-loop bench log)") in line
