@@ -58,7 +58,7 @@ from warpbridge.bridge.startup import (
     tendon_limits,
 )
 from warpbridge.bridge.telemetry import MODE_CODES, Telemetry
-from warpbridge.hw import DeviceError, open_sensor, open_servo
+from warpbridge.hw import DeviceError, open_sensor, open_servo, sensor_on_servo_port
 from warpbridge.hw.calibration import SensorCalibration, ServoCalibration
 from warpbridge.model.boucwen import BoucWenParams
 from warpbridge.model.effects import core_params
@@ -206,6 +206,7 @@ class Bridge:
             if connect_timeout > 0:
                 self.link.connect(connect_timeout)
             self._servo_down_since: float | None = None
+            self._servo_lost_text = ""  # the STATUSTEXT while it is down (raised again until the link carries it)
             self._servo_retry_at = 0.0
             self._servo_tries = 0
             if servo is None:
@@ -249,6 +250,11 @@ class Bridge:
                 raise
             self._servo_lost(e)
         try:
+            if self.servo is None and sensor_on_servo_port(cfg.sensor_backend, cfg.servo_backend):
+                # the sensor is read on the servo's Maestro: it comes back with it (``_servo_retry``)
+                log.warning("sensor: on the servo's Maestro, which is not open; feed-forward only until it returns")
+                self.sensor = None
+                return
             self.sensor = open_sensor(cfg.sensor_backend, shared_servo=self.servo)
         except ValueError as e:
             raise UserError(f"[sensor] backend: {e}") from None
@@ -261,12 +267,15 @@ class Bridge:
         if self._servo_down_since is None:
             self._servo_down_since = now
             self._servo_tries = 0
-            self.telemetry.status(SEV_CRITICAL, f"WB servo lost: {e}"[:100], key="servo")
+            self._servo_lost_text = f"WB servo lost: {e}"[:100]
+            self.telemetry.status(SEV_CRITICAL, self._servo_lost_text, key="servo")
         delay = SERVO_BACKOFF_S[min(self._servo_tries, len(SERVO_BACKOFF_S) - 1)]
         self._servo_tries += 1
         self._servo_retry_at = now + delay
 
     def _servo_retry(self, now: float) -> None:
+        # lost before the link could carry it (a board absent at start): sent once it can (keyed: once)
+        self.telemetry.status(SEV_CRITICAL, self._servo_lost_text, key="servo")
         if now < self._servo_retry_at:
             return
         try:

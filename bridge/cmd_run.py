@@ -45,7 +45,7 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
     from warpbridge.bridge.link import FcLink
     from warpbridge.bridge.signing import policy_from_config
     from warpbridge.bridge.startup import load_model, servo_limits
-    from warpbridge.hw import DeviceError, open_sensor, open_servo
+    from warpbridge.hw import DeviceError, open_sensor, open_servo, sensor_on_servo_port
 
     ok = True
     model = load_model(config)
@@ -67,6 +67,8 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
             ok = False
             print(f"servo: {config.servo_backend}: FAILED: {e}")
         try:
+            if servo is None and sensor_on_servo_port(config.sensor_backend, config.servo_backend):
+                raise DeviceError("not read: it is on the servo's Maestro, which did not open", "maestro")
             sensor = open_sensor(config.sensor_backend, shared_servo=servo)
             if backend_has_sensor(config.sensor_backend):
                 for w in config.wings.values():
@@ -100,7 +102,10 @@ def check(config: Config, link_timeout: float = CHECK_LINK_S) -> int:
             ok &= check_outputs(config, link)
         else:
             ok = False
-            print("link: FAILED: no autopilot heartbeat")
+            if link.open_error is not None:
+                print(f"link: FAILED: cannot open {config.link.connection}: {link.open_error}")
+            else:
+                print("link: FAILED: no autopilot heartbeat")
     finally:
         for dev in {id(d): d for d in (sensor, servo) if d is not None}.values():
             try:

@@ -45,6 +45,7 @@ from typing import Any
 
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 from warpbridge.bridge.signing import Signer, SigningPolicy
+from warpbridge.hw.base import open_error_text
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +174,7 @@ class FcLink:
             raise ValueError("source_system must be 1..255 (or 0/None to learn it)")
         self.connection = connection
         self.device, self.baud = split_connection(connection, baud)
+        self.open_error: str | None = None  # why the connection last failed to open (None: it opened, or not tried)
         self.servo_rate_hz = float(servo_rate_hz)
         self.airspeed_rate_hz = float(airspeed_rate_hz)
         self.rerequest_s = float(rerequest_s)
@@ -244,10 +246,12 @@ class FcLink:
             delay = _BACKOFF_S[min(self._backoff_index, len(_BACKOFF_S) - 1)]
             self._backoff_index += 1
             self._reconnect_at = self.clock() + delay
-            self._warn_once(f"open:{type(e).__name__}", f"cannot open {self.connection}: {e}; retrying")
+            self.open_error = open_error_text(e)
+            self._warn_once(f"open:{type(e).__name__}", f"cannot open {self.connection}: {self.open_error}; retrying")
             return False
         self._prepare(conn)
         self.mav = conn
+        self.open_error = None
         self._backoff_index = 0
         self._stream_asked.clear()
         self._warned = {w for w in self._warned if not w.startswith("open:")}

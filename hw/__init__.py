@@ -86,6 +86,16 @@ def open_servo(
     raise ValueError(f"unknown servo spec {spec!r}: use maestro:<device>[,baud], fc:, or loop:")
 
 
+def sensor_on_servo_port(sensor_spec: str, servo_spec: str) -> bool:
+    """True when the sensor spec names the servo spec's Maestro (``maestro:`` alone, or its device): one
+    device, open or lost together. Raises ValueError on a bad spec."""
+    kind, rest = _split(sensor_spec)
+    skind, srest = _split(servo_spec)
+    if kind != "maestro" or skind != "maestro":
+        return False
+    return not rest.strip() or _maestro(rest, 0)[0] == _maestro(srest, 0)[0]
+
+
 def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpSensor:
     """Open the sensor backend named by ``spec``.
 

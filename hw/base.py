@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -33,6 +34,14 @@ log = logging.getLogger(__name__)
 
 PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, *_TERMIOS_ERRORS)
 """What pyserial raises when a port goes away (termios.error on a hung-up tty)."""
+
+
+def open_error_text(exc: BaseException) -> str:
+    """Why a port did not open, said once: pyserial repeats the port and the errno in its text
+    ("could not open port /dev/ttyACM0: [Errno 2] No such file or directory: '/dev/ttyACM0'"), the
+    system's words for the errno do not."""
+    errno = getattr(exc, "errno", None)
+    return os.strerror(errno) if isinstance(errno, int) else str(exc)
 
 
 @runtime_checkable
@@ -120,7 +129,7 @@ class SerialDevice:
                 self.url, baudrate=self.baudrate, timeout=self.timeout, write_timeout=self.write_timeout
             )
         except (*PORT_ERRORS, ValueError) as exc:
-            raise DeviceError(f"cannot open {self.url}: {exc}", self.name) from exc
+            raise DeviceError(f"cannot open {self.url}: {open_error_text(exc)}", self.name) from exc
         self._port = port
         log.info("%s: opened %s at %d baud", self.name, self.url, self.baudrate)
         self._on_open()

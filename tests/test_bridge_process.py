@@ -505,10 +505,19 @@ def test_check_reports_every_part_and_fails_clearly(make_rig):
     assert out.strip().endswith("check: OK")
 
     rig.sensor = {SENSOR_CH["left"]: lambda: 5}  # below the table; the right sensor is missing
-    rig.emu.close_port()  # and then the Maestro is not there at all
+    rig.emu.close_port()  # and then the Maestro is not there at all, nor the FC's serial port
+    missing_fc = rig.tmp / "ttyFC"
+    text = rig.config_path.read_text()
+    rig.config_path.write_text(re.sub(r'connection = "[^"]*"', f'connection = "{missing_fc},921600"', text))
     bad = run_check(rig)
     assert bad.returncode == 2
-    assert "servo: maestro:" in bad.stdout and "FAILED" in bad.stdout
+    lines = {line.split(":")[0]: line for line in bad.stdout.splitlines()}
+    # each part names its own cause, once: the missing device, not a protocol symptom or another part's spec
+    assert "FAILED" in lines["servo"] and lines["servo"].endswith("No such file or directory"), bad.stdout
+    assert "[Errno" not in bad.stdout
+    assert "FAILED" in lines["sensor"] and "on the servo's Maestro, which did not open" in lines["sensor"]
+    assert f"link: FAILED: cannot open {missing_fc},921600: No such file or directory" in bad.stdout
+    assert "heartbeat" not in bad.stdout
     assert bad.stdout.strip().endswith("check: FAILED")
 
 

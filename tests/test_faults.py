@@ -132,12 +132,14 @@ class PtyFc:
 
 
 class Rig:
-    def __init__(self, tmp_path: Path, *, fc=None, servo: str = "loop:", sensor_counts=None) -> None:
+    def __init__(self, tmp_path: Path, *, fc=None, servo: str = "loop:", sensor_counts=None,
+                 sensor: str | None = None) -> None:
         self.fc = fc or UdpFc()
-        sensor = "loop:" if sensor_counts is not None else "none"
+        has_sensor = sensor_counts is not None or sensor is not None
+        sensor = sensor or ("loop:" if sensor_counts is not None else "none")
         cfg = tmp_path / "wb.toml"
         cfg.write_text(CONFIG.format(connection=self.fc.connection, servo=servo, sensor=sensor,
-                                     left_sensor="sensor_channel = 5" if sensor_counts is not None else ""))
+                                     left_sensor="sensor_channel = 5" if has_sensor else ""))
         self.clock = ManualClock(20.0)
         self.loop = LoopBackend(counts=sensor_counts, clock=self.clock) if servo == "loop:" else None
         self.bridge = Bridge(load_config(cfg), servo=self.loop, sensor=self.loop if sensor_counts else None,
@@ -276,6 +278,31 @@ def test_servo_board_unplugged_and_back(tmp_path):
         assert r.following()
         lo, hi = (4 * x for x in LIMITS_US)
         assert all(lo <= q <= hi for _, q in targets)  # quarter-us, within the limits throughout
+    finally:
+        r.close()
+        emu.stop()
+
+
+def test_servo_board_absent_at_start_is_waited_for_with_the_sensor_on_it(tmp_path):
+    """The companion computer boots before the Maestro is plugged in, and the warp sensor is read on that same
+    board (``maestro:``): the bridge starts anyway, feed-forward only, and takes up servo and sensor once the
+    board appears."""
+    targets: list[tuple[int, int]] = []
+    emu = MaestroEmulator(on_target=lambda ch, q: targets.append((ch, q)), read_analog=lambda ch: 500,
+                          link=tmp_path / "maestro")
+    r = Rig(tmp_path, servo=f"maestro:{tmp_path / 'maestro'}", sensor="maestro:")
+    try:
+        assert r.bridge.servo is None and r.bridge.sensor is None
+        cycles = r.bridge.cycles
+        r.tick(300)  # 3 s without the board
+        assert r.bridge.cycles == cycles + 300
+        assert r.count("servo lost") == 1
+        emu.start()
+        r.pwm = 1700
+        assert r.ticks_until(lambda: len(targets) > 10, 10.0) <= 8.0 + 0.5  # within one back-off period
+        assert r.count("servo output back") == 1
+        assert r.bridge.sensor is r.bridge.servo  # one board: the sensor came back with the servo
+        assert r.ticks_until(lambda: r.bridge.wings["left"].ctl.mode == "ff+pi", 2.0) < 2.0
     finally:
         r.close()
         emu.stop()
