@@ -226,6 +226,17 @@ def test_real_flight_joins_by_stamps_and_the_check_agrees(real):
     assert np.median(np.abs(flight.wings["left"].setpoint[ok] - expect[ok])) < 0.3
 
 
+def test_a_cycle_log_of_another_flight_is_called_out(real):
+    """The PX4 flight's cycle log given with the ArduPlane flight's DataFlash log: its stamps place it, but its
+    setpoint does not follow that FC's aileron output, and the review says so; the right pair raises nothing."""
+    fc, _, (rv, _, _) = real
+    assert not any("another flight" in w for w in rv.warnings), rv.warnings
+    other, _, al = review(fc, read_cycle_log(DATA / "px4-flight-cycles.csv"))
+    assert al.method == "fc_t" and abs(al.residual_s) > 0.1
+    said = [w for w in other.warnings if "another flight" in w]
+    assert len(said) == 1 and f"|r| {al.check_corr:.2f}" in said[0], other.warnings
+
+
 def test_real_flight_tracking_roll_authority_and_link(real):
     fc, cl, (rv, flight, al) = real
     assert rv.source == "cycle log" and rv.rate_hz > 50

@@ -35,6 +35,10 @@ CHECK_WINDOW_S = 1.0  # lags searched around the stamps' alignment
 ENVELOPE_WINDOW_S = 10.0  # offset estimated per window, then fitted as a line
 ENVELOPE_PCT = 95.0
 MIN_SIGNAL_STD = 1e-6
+# a join whose check falls below this |correlation|, or whose residual exceeds this, is not of one flight: the
+# real flights of the tests check at |r| 0.986-0.999 with residuals of 0.03-3.3 ms (13 ms at PX4's 10 Hz outputs)
+CHECK_MIN_CORR = 0.5
+CHECK_MAX_RESIDUAL_S = 0.1
 
 
 @dataclass
@@ -132,6 +136,20 @@ class Alignment:
 
     def fc_time(self, t: np.ndarray) -> np.ndarray:
         return np.asarray(t) + self.offset_s + self.drift * (np.asarray(t) - self.t_ref)
+
+
+def join_mismatch(al: Alignment) -> str | None:
+    """Why the cycle log seems not to be of this FC log's flight (its setpoint does not follow the FC's aileron
+    output: a low correlation, or a lag the stamps do not predict), or None. Unchecked joins pass."""
+    corr, res = al.check_corr, al.residual_s
+    low = math.isfinite(corr) and corr < CHECK_MIN_CORR
+    off = math.isfinite(res) and abs(res) > CHECK_MAX_RESIDUAL_S
+    if not (low or off):
+        return None
+    said = f"|r| {corr:.2f}" + (f", residual {res * 1e3:.0f} ms" if math.isfinite(res) else "")
+    return (f"the cycle log's setpoint does not follow this FC log's aileron output ({said}; the logs of one "
+            "flight check at |r| near 1, within a few ms): is the cycle log of another flight? The tracking and "
+            "roll-authority figures are of the two logs as joined")
 
 
 def _grid(t: np.ndarray, v: np.ndarray, t0: float, t1: float, dt: float) -> np.ndarray:

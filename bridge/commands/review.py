@@ -27,7 +27,15 @@ import numpy as np
 
 from warpbridge.bridge.commands.fclog import FcEvent, FcLog, Series, read_fc_log
 from warpbridge.bridge.commands.logfile import write_text_atomic
-from warpbridge.bridge.commands.logjoin import WINGS, Alignment, CycleLog, aileron_series, align, read_cycle_log
+from warpbridge.bridge.commands.logjoin import (
+    WINGS,
+    Alignment,
+    CycleLog,
+    aileron_series,
+    align,
+    join_mismatch,
+    read_cycle_log,
+)
 from warpbridge.bridge.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -368,6 +376,8 @@ def review(fc: FcLog, cl: CycleLog | None, *, channel: int | None = None, bands:
         al = align(cl, fc, channel)
         flight = flight_from_cycle_log(cl, fc, al)
         notes += al.notes
+        if (mismatch := join_mismatch(al)) is not None:
+            warnings.append(mismatch)
     else:
         flight = flight_from_fc_log(fc)
     if flight.rate_hz < DIAGNOSE_MIN_HZ:
@@ -492,6 +502,9 @@ def main(args: argparse.Namespace) -> int:
         if s.n:
             print(f"{w} wing: tracking RMS {s.rms:.3f} deg, 95% {s.p95:.3f} deg over {s.n} samples")
     for g in rv.roll_authority:
+        if g.n == 0:
+            print(f"roll authority {g.band}: no samples in this band")
+            continue
         if not g.reliable:
             ff = "too little manoeuvring to fit"
         elif fc.autopilot == "px4":  # FW_RR_FF: docs/review.md
