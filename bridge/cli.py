@@ -75,6 +75,17 @@ def _chosen(argv: list[str], names: set[str]) -> str | None:
     return None
 
 
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Help that gives an option's default where its text does not already (as docs/commands.md does)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if action.option_strings and action.nargs != 0 and "default" not in text \
+                and action.default not in (None, "", [], argparse.SUPPRESS):
+            text += " (default %(default)s)"
+        return text
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser; only the chosen command's module is imported (all of them when ``argv`` is None).
 
@@ -85,20 +96,44 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         prog="warpbridge",
         description="Hysteresis-compensated tendon-sheath wing warping beside a PX4/ArduPilot autopilot.",
     )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v for debug)")
-    parser.add_argument("-q", "--quiet", action="count", default=0,
+    parser.add_argument("-v", "--verbose", dest="verbose_top", action="count", default=0,
+                        help="more log output (-v for debug)")
+    parser.add_argument("-q", "--quiet", dest="quiet_top", action="count", default=0,
                         help="less log output: warnings and faults only (-qq: errors only)")
     parser.add_argument("--version", action="version", version=f"warpbridge {version()}",
                         help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     chosen = None if argv is None else _chosen(argv, set(COMMANDS))
     for name, (_path, help_) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_, description=help_)
+        p = sub.add_parser(name, help=help_, description=help_, formatter_class=DefaultsFormatter)
         if argv is None or name == chosen:
             module = load(name)
             module.add_arguments(p)
             p.set_defaults(_module=module)
+            _add_common(p)
     return parser
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    """The common options after the command as well (``warpbridge predict ... -v``), hidden from its help and
+    marked ``common``; ``main`` adds the counts before and after the command. A command with its own
+    ``--quiet`` (less on the terminal, and less log output as well) gets ``-q`` for it."""
+    taken = set(p._option_string_actions)
+    for flags, kw in ((("-v", "--verbose"), {"dest": "verbose", "action": "count"}),
+                      (("-q", "--quiet"), {"dest": "quiet", "action": "count"}),
+                      (("--version",), {"action": "version", "version": f"warpbridge {version()}"})):
+        free = [f for f in flags if f not in taken]
+        if free:
+            action = p.add_argument(*free, help=argparse.SUPPRESS, **kw)
+            action.common = True  # type: ignore[attr-defined]
+
+
+def _subparser(parser: argparse.ArgumentParser, name: str | None) -> argparse.ArgumentParser | None:
+    """The parser of command ``name`` (None when there is none)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and name in action.choices:
+            return action.choices[name]
+    return None
 
 
 def log_level(verbose: int, quiet: int) -> int:
@@ -116,8 +151,14 @@ def main(argv: list[str] | None = None) -> int:
     except CommandUnavailable as e:
         print(f"warpbridge {e.command}: {e}", file=sys.stderr)
         return EXIT_UNAVAILABLE
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=log_level(args.verbose, args.quiet), format="%(levelname)s %(name)s: %(message)s")
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # an option the command does not know: its own usage, not the top level's
+        command = _subparser(parser, getattr(args, "command", None))
+        (command or parser).error(f"unrecognized arguments: {' '.join(extra)}")
+    # the log level counts -v and -q before the command and after it; a command's own --quiet stays its own
+    verbose = args.verbose_top + int(getattr(args, "verbose", None) or 0)
+    quiet = args.quiet_top + int(getattr(args, "quiet", None) or 0)
+    logging.basicConfig(level=log_level(verbose, quiet), format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -147,3 +147,53 @@ def test_the_console_script_lists_every_command(tmp_path):
     r = console_script("--help", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert help_commands(r.stdout) == set(cli.COMMANDS) >= SEVEN
+
+
+@pytest.fixture
+def recording_command(monkeypatch, fake_modules):
+    """``diagnose`` replaced by a command with its own ``--quiet`` that records what it was given, and the log
+    level's counts recorded."""
+    module = fake_modules("wb_cmd_recording", """
+        seen = {}
+
+        def add_arguments(parser):
+            parser.add_argument("--quiet", action="store_true", help="less on the terminal")
+
+        def main(args):
+            seen["quiet"] = args.quiet
+            return 0
+        """)
+    monkeypatch.setitem(cli.COMMANDS, "diagnose", (module, "diagnose"))
+    levels: list[tuple[int, int]] = []
+    real = cli.log_level
+    monkeypatch.setattr(cli, "log_level", lambda v, q: levels.append((v, q)) or real(v, q))
+    return sys.modules.get(module) or __import__(module), levels
+
+
+@pytest.mark.parametrize(("argv", "counts", "own_quiet"), [
+    (["-v", "diagnose"], (1, 0), False),
+    (["diagnose", "-v", "--verbose"], (2, 0), False),
+    (["-v", "diagnose", "-v"], (2, 0), False),
+    (["-q", "diagnose"], (0, 1), False),  # less log output; the command's own terminal output stays
+    (["diagnose", "-q"], (0, 1), True),  # after the command, -q is the command's own --quiet
+    (["-q", "diagnose", "--quiet"], (0, 2), True),
+])
+def test_the_common_options_count_before_and_after_the_command(recording_command, argv, counts, own_quiet):
+    module, levels = recording_command
+    assert cli.main(argv) == 0
+    assert levels == [counts]
+    assert bool(module.seen["quiet"]) is own_quiet
+
+
+def test_an_unknown_option_shows_the_commands_usage(recording_command, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["diagnose", "--max-dealy", "0.1"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: warpbridge diagnose") and "unrecognized arguments: --max-dealy 0.1" in err
+
+
+def test_the_version_after_a_command(recording_command, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["diagnose", "--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("warpbridge ")

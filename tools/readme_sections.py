@@ -95,7 +95,7 @@ def commands_section() -> str:
         out += ["", f"## `warpbridge {name}`", "", f"{_sentence(cli.COMMANDS[name][1])}", "",
                 "| option | meaning |", "|---|---|"]
         for a in p._actions:
-            if a.dest == "help":
+            if a.dest == "help" or getattr(a, "common", False):
                 continue
             out.append(f"| {_option_name(a)} | {_help(a)} |")
     return "\n".join(out)
@@ -123,9 +123,11 @@ def commands_summary() -> str:
 
 
 def all_flags() -> dict[str, list[str]]:
-    """command -> every option string it takes (for the test that docs/commands.md lists them)."""
+    """command -> every option string it takes but the common ones (listed once for every command), for the
+    test that docs/commands.md lists them."""
     _parser, subs = command_parsers()
-    return {name: [o for a in p._actions for o in a.option_strings if o not in ("-h", "--help")]
+    return {name: [o for a in p._actions if not getattr(a, "common", False) for o in a.option_strings
+                   if o not in ("-h", "--help")]
             for name, p in subs.items()}
 
 
