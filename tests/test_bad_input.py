@@ -81,6 +81,7 @@ def test_calibrate_options_are_checked_before_anything_opens(tmp_path, capsys, a
     (["--ki", "nan"], "--ki"),
     (["--gcs", "14550:udp"], "--gcs"),
     (["--effects", "delay"], "--effects"),
+    (["--bridge-model", "no-such-model.json"], "--bridge-model: no-such-model.json: no such model file"),
 ])
 def test_sitl_options_out_of_range(capsys, argv, says):
     fails_cleanly(capsys, ["sitl", *argv], says)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -133,3 +135,30 @@ def test_compare_scores_each_window_over_each_seed():
     for o, f in ((rows[0], rows[1]), (rows[2], rows[3])):
         assert all(b < 0.5 * a for a, b in zip(o.rms, f.rms, strict=True))
     assert rows[0].rms_min <= rows[0].rms_mean <= rows[0].rms_max
+
+
+def test_the_lockstep_runs_bridges_log_errors_only_unless_verbose(caplog):
+    """A dozen simulated bridges starting up (the failsafe before the FC's first output, the output check) would
+    bury the lock-step table: while the runs go, the bridge's loggers pass errors only; the runs' own progress
+    passes, and -v (debug on the root logger) passes everything."""
+    from warpbridge.sitl.cmd_sitl import simulated_bridges_quiet
+
+    bridge, sitl = logging.getLogger("warpbridge.bridge.telemetry"), logging.getLogger("warpbridge.sitl.lockstep")
+    root = logging.getLogger()
+    with caplog.at_level(logging.INFO):
+        with simulated_bridges_quiet():
+            bridge.warning("WB failsafe: no servo outputs yet")
+            bridge.error("WB servo lost")
+            sitl.info("random open seed 0: RMS 1.3 deg")
+        bridge.warning("after the runs")
+    assert [r.getMessage() for r in caplog.records] == ["WB servo lost", "random open seed 0: RMS 1.3 deg",
+                                                        "after the runs"]
+    caplog.clear()
+    level = root.level
+    root.setLevel(logging.DEBUG)
+    try:
+        with simulated_bridges_quiet():
+            bridge.warning("verbose: kept")
+    finally:
+        root.setLevel(level)
+    assert [r.getMessage() for r in caplog.records] == ["verbose: kept"]
