@@ -193,7 +193,8 @@ def true_travel_fit(rig: Path, wing: str) -> dict | None:
     record."""
     if not rig.is_file():
         return None
-    reads = np.load(rig)[f"{wing}_reads"].reshape(-1, 5)
+    with np.load(rig) as z:
+        reads = z[f"{wing}_reads"].reshape(-1, 5)
     t, u, w = reads[:, 0], reads[:, 3], np.asarray(FlexSensorSpec().deg_of_counts(reads[:, 1]), dtype=np.float64)
     keep = np.concatenate([[True], np.diff(t) > 0])
     t0 = time.perf_counter()
@@ -293,7 +294,10 @@ def main() -> None:
                     rec["runs"][key] = runs
                     rec.setdefault("merged_from", {})[key] = merge_name
             if "rig" in lg and "true_travel" not in rec:
-                rec["true_travel"] = true_travel_fit(*lg["rig"])
+                # only of the recording the kept figures are of (a run records its cycle logs afresh)
+                same = rec.get("samples") == int(t.size) and math.isclose(rec.get("seconds_of_log", math.nan),
+                                                                          float(t[-1] - t[0]))
+                rec["true_travel"] = true_travel_fit(*lg["rig"]) if same else None
             summarise(rec, bool(lg["others"]))
             out["logs"].append(rec)
             print(f"{lg['set']}  {lg['log']}  (kept from {args.resume})", flush=True)

@@ -250,6 +250,9 @@ class Bridge:
                 raise
             self._servo_lost(e)
         try:
+            if not initial and self.sensor is not None and not sensor_on_servo_port(cfg.sensor_backend,
+                                                                                    cfg.servo_backend):
+                return  # a sensor on its own device stayed open while the servo was away
             if self.servo is None and sensor_on_servo_port(cfg.sensor_backend, cfg.servo_backend):
                 # the sensor is read on the servo's Maestro: it comes back with it (``_servo_retry``)
                 log.warning("sensor: on the servo's Maestro, which is not open; feed-forward only until it returns")

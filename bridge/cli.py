@@ -116,12 +116,12 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     """The common options after the command as well (``warpbridge predict ... -v``), hidden from its help and
-    marked ``common``; ``main`` adds the counts before and after the command. A command with its own
-    ``--quiet`` (less on the terminal, and less log output as well) gets ``-q`` for it."""
+    marked ``common``; ``main`` adds the counts before and after the command. Where the command has an option
+    of the same name (``identify --quiet``: no progress bar), that name stays the command's own."""
     taken = set(p._option_string_actions)
-    for flags, kw in ((("-v", "--verbose"), {"dest": "verbose", "action": "count"}),
-                      (("-q", "--quiet"), {"dest": "quiet", "action": "count"}),
-                      (("--version",), {"action": "version", "version": f"warpbridge {version()}"})):
+    for flags, kw in (("-v", "--verbose"), {"dest": "verbose_after", "action": "count", "default": 0}), \
+                     (("-q", "--quiet"), {"dest": "quiet_after", "action": "count", "default": 0}), \
+                     (("--version",), {"action": "version", "version": f"warpbridge {version()}"}):
         free = [f for f in flags if f not in taken]
         if free:
             action = p.add_argument(*free, help=argparse.SUPPRESS, **kw)
@@ -152,12 +152,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"warpbridge {e.command}: {e}", file=sys.stderr)
         return EXIT_UNAVAILABLE
     args, extra = parser.parse_known_args(argv)
-    if extra:  # an option the command does not know: its own usage, not the top level's
-        command = _subparser(parser, getattr(args, "command", None))
-        (command or parser).error(f"unrecognized arguments: {' '.join(extra)}")
-    # the log level counts -v and -q before the command and after it; a command's own --quiet stays its own
-    verbose = args.verbose_top + int(getattr(args, "verbose", None) or 0)
-    quiet = args.quiet_top + int(getattr(args, "quiet", None) or 0)
+    if extra:  # an option the command does not know: its usage, not the top level's (unless it came first)
+        name = getattr(args, "command", None)
+        after = name is not None and all(x not in argv[:argv.index(name)] for x in extra)
+        ((_subparser(parser, name) if after else None) or parser).error(f"unrecognized arguments: {' '.join(extra)}")
+    # the log level counts -v and -q before the command and after it; a command's own --quiet (which only it
+    # reads, as ``args.quiet``) lowers it as well
+    verbose = args.verbose_top + getattr(args, "verbose_after", 0)
+    quiet = args.quiet_top + getattr(args, "quiet_after", 0) + int(bool(getattr(args, "quiet", False)))
     logging.basicConfig(level=log_level(verbose, quiet), format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "command", None):
         parser.print_help()

@@ -88,12 +88,16 @@ def open_servo(
 
 def sensor_on_servo_port(sensor_spec: str, servo_spec: str) -> bool:
     """True when the sensor spec names the servo spec's Maestro (``maestro:`` alone, or its device): one
-    device, open or lost together. Raises ValueError on a bad spec."""
+    device, open or lost together. Raises ValueError on a bad sensor spec (a bad servo spec is not its)."""
     kind, rest = _split(sensor_spec)
-    skind, srest = _split(servo_spec)
-    if kind != "maestro" or skind != "maestro":
+    if kind != "maestro":
         return False
-    return not rest.strip() or _maestro(rest, 0)[0] == _maestro(srest, 0)[0]
+    try:
+        skind, srest = _split(servo_spec)
+        servo_url = _maestro(srest, 0)[0] if skind == "maestro" else None
+    except ValueError:  # the servo's spec: reported as the servo's
+        return False
+    return servo_url is not None and (not rest.strip() or _maestro(rest, 0)[0] == servo_url)
 
 
 def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpSensor:

@@ -41,7 +41,9 @@ def open_error_text(exc: BaseException) -> str:
     ("could not open port /dev/ttyACM0: [Errno 2] No such file or directory: '/dev/ttyACM0'"), the
     system's words for the errno do not."""
     errno = getattr(exc, "errno", None)
-    return os.strerror(errno) if isinstance(errno, int) else str(exc)
+    if isinstance(errno, int) and errno > 0:
+        return os.strerror(errno)
+    return getattr(exc, "strerror", None) or str(exc)  # a resolver's error (negative errno) says it itself
 
 
 @runtime_checkable

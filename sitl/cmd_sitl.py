@@ -783,6 +783,8 @@ def check_options(args: argparse.Namespace) -> None:
         v = getattr(args, name)
         if v is not None and not 0 <= v <= 100:
             raise UserError(f"--{name} must be within 0..100 (got {v:g})")
+    if args.bridge_model == "identify" and args.plant != "sheath":
+        raise UserError("--bridge-model identify needs --plant sheath")
     if args.bridge_model not in (None, "paper", "identify"):  # read before anything starts, named as given
         from warpbridge.bridge.commands.modelio import load_model
 

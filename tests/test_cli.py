@@ -175,8 +175,10 @@ def recording_command(monkeypatch, fake_modules):
     (["diagnose", "-v", "--verbose"], (2, 0), False),
     (["-v", "diagnose", "-v"], (2, 0), False),
     (["-q", "diagnose"], (0, 1), False),  # less log output; the command's own terminal output stays
-    (["diagnose", "-q"], (0, 1), True),  # after the command, -q is the command's own --quiet
-    (["-q", "diagnose", "--quiet"], (0, 2), True),
+    (["diagnose", "-q"], (0, 1), False),  # the same after the command
+    (["-q", "diagnose", "--quiet"], (0, 2), True),  # the command's own --quiet lowers the log level as well
+    (["diagnose", "--quiet", "-q"], (0, 2), True),
+    (["diagnose", "-q", "--quiet"], (0, 2), True),
 ])
 def test_the_common_options_count_before_and_after_the_command(recording_command, argv, counts, own_quiet):
     module, levels = recording_command
@@ -191,6 +193,14 @@ def test_an_unknown_option_shows_the_commands_usage(recording_command, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("usage: warpbridge diagnose") and "unrecognized arguments: --max-dealy 0.1" in err
+
+
+def test_an_unknown_option_before_the_command_shows_the_top_level_usage(recording_command, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--bogus", "diagnose"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: warpbridge [") and "unrecognized arguments: --bogus" in err
 
 
 def test_the_version_after_a_command(recording_command, capsys):

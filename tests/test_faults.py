@@ -308,6 +308,23 @@ def test_servo_board_absent_at_start_is_waited_for_with_the_sensor_on_it(tmp_pat
         emu.stop()
 
 
+def test_a_sensor_on_its_own_device_stays_open_while_the_servo_board_comes_back(tmp_path):
+    """The servo board absent at start, the sensor on another device (here the loop backend): when the board
+    appears the servo is opened, and the sensor already open is kept, not opened a second time."""
+    emu = MaestroEmulator(link=tmp_path / "maestro")
+    r = Rig(tmp_path, servo=f"maestro:{tmp_path / 'maestro'}", sensor="loop:")
+    try:
+        sensor = r.bridge.sensor
+        assert r.bridge.servo is None and sensor is not None
+        r.tick(100)
+        emu.start()
+        assert r.ticks_until(lambda: r.bridge.servo is not None, 10.0) <= 8.0 + 0.5
+        assert r.bridge.sensor is sensor
+    finally:
+        r.close()
+        emu.stop()
+
+
 def test_servo_board_error_reported_once_while_it_persists(tmp_path):
     r = Rig(tmp_path)
     try:

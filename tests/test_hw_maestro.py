@@ -357,3 +357,16 @@ def test_maestro_spec_takes_a_read_timeout(board):
     for bad in ("timeout=x", "timeout=0", "timeout=20"):
         with pytest.raises(ValueError, match="timeout"):
             hw.open_servo(f"maestro:{path},{bad}")
+
+
+def test_a_port_that_does_not_open_is_named_with_its_cause_once(tmp_path):
+    """pyserial's text repeats the port and the errno; the error says the system's words for it once, and a
+    resolver's error (negative errno) in its own words."""
+    import socket
+
+    from warpbridge.hw.base import open_error_text
+
+    with pytest.raises(DeviceError) as e:
+        Maestro(str(tmp_path / "ttyACM0"), 115200)
+    assert str(e.value).endswith(f"cannot open {tmp_path / 'ttyACM0'}: No such file or directory")
+    assert open_error_text(socket.gaierror(-2, "Name or service not known")) == "Name or service not known"

@@ -18,7 +18,7 @@ import review_synth as rs
 
 from warpbridge.bridge.commands import review as review_cmd
 from warpbridge.bridge.commands.fclog import read_fc_log
-from warpbridge.bridge.commands.logjoin import align, read_cycle_log, xcorr_lag
+from warpbridge.bridge.commands.logjoin import Alignment, align, join_mismatch, read_cycle_log, xcorr_lag
 from warpbridge.bridge.commands.review import PHASES, _lost, phases, review
 from warpbridge.bridge.errors import UserError
 
@@ -235,6 +235,17 @@ def test_a_cycle_log_of_another_flight_is_called_out(real):
     assert al.method == "fc_t" and abs(al.residual_s) > 0.1
     said = [w for w in other.warnings if "another flight" in w]
     assert len(said) == 1 and f"|r| {al.check_corr:.2f}" in said[0], other.warnings
+
+
+@pytest.mark.parametrize(("corr", "lag_ms", "expected_ms", "called_out"), [
+    (0.999, 9.5, 9.5, False),
+    (0.94, 22.0, 9.0, False),  # PX4's outputs at 10 Hz
+    (0.70, 9.5, 9.0, True),  # stamps that place it, values that do not follow
+    (0.99, 600.0, 9.0, True),
+])
+def test_a_join_is_called_out_by_its_correlation_or_its_residual(corr, lag_ms, expected_ms, called_out):
+    al = Alignment("fc_t", 0.0, check_lag_s=lag_ms / 1e3, expected_lag_s=expected_ms / 1e3, check_corr=corr)
+    assert (join_mismatch(al) is not None) is called_out
 
 
 def test_real_flight_tracking_roll_authority_and_link(real):

@@ -90,7 +90,12 @@ def commands_section() -> str:
     out += [_usage(p) for p in subs.values()]
     out += ["```", ""]
     common = [a for a in parser._actions if a.option_strings and a.dest != "help"]
-    out.append("Every command also takes " + "; ".join(f"{_option_name(a)}: {_help(a)}" for a in common) + ".")
+    own = [f"`{name} {o}`" for name, p in subs.items() for a in p._actions if not getattr(a, "common", False)
+           for o in a.option_strings if any(o in c.option_strings for c in common)]
+    out.append("Every command also takes " + "; ".join(f"{_option_name(a)}: {_help(a)}" for a in common)
+               + ", before the command or after it"
+               + (f"; where a command has an option of the same name ({', '.join(own)}), after the command that "
+                  "name is the command's own." if own else "."))
     for name, p in subs.items():
         out += ["", f"## `warpbridge {name}`", "", f"{_sentence(cli.COMMANDS[name][1])}", "",
                 "| option | meaning |", "|---|---|"]

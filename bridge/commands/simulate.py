@@ -29,9 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tendon input: filtered random (paper), sine, sweep 0.5-3 Hz, multisine, steps")
     p.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     p.add_argument("--rate", type=float, default=500.0, help="samples per second (default 500)")
-    p.add_argument("--warp-range", default="2:12", help="warp span, deg 'lo:hi', the tendon input is scaled to (through the plant's loading "
-                   "branch); the log's warp stays inside it, and spans less where the input seldom reaches its "
-                   "ends (default 2:12)")
+    p.add_argument("--warp-range", default="2:12",
+                   help="warp span, deg 'lo:hi', the tendon input is scaled to (through the plant's loading branch); "
+                        "the true warp stays inside it, and spans less where the input seldom reaches its ends "
+                        "(default 2:12)")
     p.add_argument("--cutoff", type=float, default=1.0, help="random input cut-off, Hz (default 1)")
     p.add_argument("--freq", type=float, default=1.0, help="sine frequency, Hz (default 1)")
     p.add_argument("--noise", type=float, default=0.05, help="warp sensor noise, deg RMS (default 0.05)")
