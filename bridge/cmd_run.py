@@ -24,6 +24,7 @@ from pathlib import Path
 
 from warpbridge.bridge.config import Config, backend_has_sensor, load_config
 from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.instance_lock import InstanceLock
 
 log = logging.getLogger(__name__)
 
@@ -144,6 +145,14 @@ def main(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     _jit.interpret()  # before anything imports the model's kernels
+    lock = InstanceLock(config.params_file).acquire("run --check" if args.check else "run")
+    try:
+        return _main(args, config)
+    finally:
+        lock.release()
+
+
+def _main(args: argparse.Namespace, config: Config) -> int:
     if args.check:
         return check(config)
     if args.duration is not None and not args.duration > 0:

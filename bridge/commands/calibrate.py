@@ -22,8 +22,13 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from warpbridge.bridge.errors import UserError
+
+if TYPE_CHECKING:
+    from warpbridge.bridge.app import Bridge
+    from warpbridge.bridge.config import Config
 
 log = logging.getLogger(__name__)
 
@@ -42,16 +47,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from warpbridge.bridge.app import Bridge
-    from warpbridge.bridge.calibrate import CalState, Refused
     from warpbridge.bridge.config import load_config
-    from warpbridge.bridge.loop_timer import LoopTimer
+    from warpbridge.bridge.instance_lock import InstanceLock
 
     if args.seconds is not None and not 8.0 <= args.seconds <= 29.0:
         raise UserError("--seconds must be within 8..29")
     if not 0.0 <= args.timeout <= 600.0:
         raise UserError("--timeout must be within 0..600 s")
     config = load_config(args.config)
-    bridge = Bridge(config, connect_timeout=0.0 if args.no_fc else args.timeout)
+    with InstanceLock(config.params_file).acquire("calibrate"):
+        return _calibrate(args, config, Bridge(config, connect_timeout=0.0 if args.no_fc else args.timeout))
+
+
+def _calibrate(args: argparse.Namespace, config: Config, bridge: Bridge) -> int:
+    from warpbridge.bridge.calibrate import CalState, Refused
+    from warpbridge.bridge.loop_timer import LoopTimer
+
     try:
         tuning = bridge.tuning
         tuning.allow_no_fc = args.no_fc
