@@ -199,9 +199,15 @@ class Bridge:
                                 + self.tuning.param_specs(self._apply_param), config.params_file)
         try:
             self.params = ParamServer(self.store, self.link, allowed_gcs=config.link.gcs_sysid_allow, clock=clock)
+            stored = []
             for name in self.store.names:  # values set earlier over MAVLink override the config
                 if self.store.get(name) != self.store.specs[name].default:
                     self._apply_param(name, self.store.get(name))
+                    was = self.store.specs[name].default
+                    stored.append(f"{name} {self.store.get(name):.4g} (configured {was:.4g})")
+            if stored:
+                log.info("parameters set earlier (%s) override the configuration: %s", config.params_file,
+                         ", ".join(stored))
             self.tuning.attach(self.store, lambda n: self.params.send_value(self.store.index(n)))
             if connect_timeout > 0:
                 self.link.connect(connect_timeout)

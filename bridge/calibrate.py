@@ -389,6 +389,12 @@ class FieldTuning:
     def owns(name: str) -> bool:
         return name.startswith(("WB_CAL_", "WB_AD"))
 
+    @staticmethod
+    def is_estimate(name: str) -> bool:
+        """True for a parameter the adaptation writes itself (a wing's offset, gain or drift estimate), not one a
+        user sets."""
+        return any(name == f"WB_AD{t}_{k}" for t in TAG.values() for k in ("OFF", "GAIN", "DRFT"))
+
     def attach(self, store: Any, announce: Callable[[str], None]) -> None:
         """Hand over the parameter store (after the bridge applied the persisted values)."""
         self.params_store, self.announce = store, announce

@@ -162,3 +162,21 @@ def test_the_lockstep_runs_bridges_log_errors_only_unless_verbose(caplog):
     finally:
         root.setLevel(level)
     assert [r.getMessage() for r in caplog.records] == ["verbose: kept"]
+
+
+def test_parameters_set_in_a_run_are_told_from_the_adaptations_own(tmp_path):
+    """The real-time run's table is compared with a lock-step replay of the configuration: a parameter set from a
+    ground station (or a calibration) makes them unlike, the adaptation's own estimates do not."""
+    import json
+
+    from warpbridge.sitl.cmd_sitl import params_set_in_run
+
+    path = tmp_path / "params.json"
+    assert params_set_in_run(path) == []
+    estimates = {"WB_ADL_GAIN": 0.99, "WB_ADL_OFF": -0.03, "WB_ADR_GAIN": 0.99, "WB_ADR_OFF": -0.04,
+                 "WB_ADR_DRFT": 0.01}
+    path.write_text(json.dumps({"format": "warpbridge-params/1", "params": estimates}))
+    assert params_set_in_run(path) == []
+    path.write_text(json.dumps({"format": "warpbridge-params/1",
+                                "params": estimates | {"WB_KP": 0.7, "WB_CAL_SEC": 10.0}}))
+    assert params_set_in_run(path) == ["WB_CAL_SEC", "WB_KP"]
