@@ -719,9 +719,13 @@ def run_bridge(config: Config, stop_event: threading.Event | None = None, durati
     bridge = Bridge(config, servo=servo, sensor=sensor, link=link, opened_servo=opened_servo)
     timer = LoopTimer(config.loop.rate_hz, sleep=_waiter(bridge, config.loop.wake_on_message))
     w = next(iter(bridge.wings.values()))
+    model = "paper" if config.model_file is None else str(config.model_file)
+    calibrated = [n for n in bridge.wings if n in bridge.tuning.store.current]
+    if calibrated:  # what flies is the calibration of the configured model, not the model alone
+        model += f" with the {' and '.join(calibrated)} wing's calibration from {bridge.tuning.store.path}"
     log.info("bridge running at %g Hz: FC link %s, servo %s, sensor %s, model %s, mode %s%s", config.loop.rate_hz,
-             config.link.connection, config.servo_backend, config.sensor_backend,
-             "paper" if config.model_file is None else config.model_file, w.ctl.mode, bridge._mode_note(w.ctl.mode))
+             config.link.connection, config.servo_backend, config.sensor_backend, model, w.ctl.mode,
+             bridge._mode_note(w.ctl.mode))
     try:
         while not (stop_event is not None and stop_event.is_set()):
             if duration is not None and timer.elapsed() >= duration:

@@ -214,3 +214,24 @@ def test_a_disarmed_output_below_its_range_holds_the_wings_neutral(tmp_path):
     assert ("ff", "6.5", "0.5") in seen
     assert seen.index(("ff", "6.5", "0.5")) < seen.index(("ff", "2", "2"), 1)  # parked again after
     assert seen[-1] == ("ff", "0", "8")  # armed: the low output is a command
+
+
+def test_the_start_says_when_a_wing_flies_its_calibration(tmp_path, caplog):
+    """A calibration persisted beside the parameter store is what the wing flies after a restart: the start-up
+    line names it, not the configured model alone."""
+    import logging
+
+    from warpbridge.bridge.calibrate import CalStore, WingCal, cal_path
+    from warpbridge.model.transform import Transform
+
+    config = load_config(write_config(tmp_path, free_udp_port()))
+    with caplog.at_level(logging.INFO, logger="warpbridge.bridge.app"):
+        run_bridge(config, servo=LoopBackend(), duration=0.05)
+    line = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("bridge running"))
+    assert "calibration" not in line
+    CalStore(cal_path(config.params_file)).push("left", WingCal(Transform(offset=0.5, gain=1.05)))
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="warpbridge.bridge.app"):
+        run_bridge(config, servo=LoopBackend(), duration=0.05)
+    line = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("bridge running"))
+    assert f"with the left wing's calibration from {cal_path(config.params_file)}" in line
