@@ -679,8 +679,9 @@ def gcs_banner(gcs: list[str]) -> str:
     for g in gcs:
         kind, _, address = g.partition(":")
         where.append(f"listening on {address}" if kind in ("udpin", "tcpin") else f"sending to {address}")
-    return (f"{', '.join(where)} ({', '.join(gcs)}); the autopilot is component 1, the bridge component 191 "
-            "(QGroundControl, Mission Planner, MAVProxy listen on 14550)")
+    usual = any(g.partition(":")[0] == "udp" and g.rsplit(":", 1)[-1] == "14550" for g in gcs)
+    return (f"{', '.join(where)} ({', '.join(gcs)}); the autopilot is component 1, the bridge component 191"
+            + (" (QGroundControl, Mission Planner, MAVProxy listen on 14550)" if usual else ""))
 
 
 def _count_lines(path: Path) -> int:

@@ -223,3 +223,12 @@ def test_free_ports_lie_below_the_ephemeral_range_and_are_never_handed_out_twice
     for p in ports[:5]:  # and free: they bind
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.bind(("127.0.0.1", p))
+
+
+def test_the_banner_names_the_usual_ground_station_port_only_when_it_is_used():
+    from warpbridge.sitl.cmd_sitl import gcs_banner
+
+    assert "MAVProxy listen on 14550" in gcs_banner(["udp:127.0.0.1:14550"])
+    other = gcs_banner(["udpin:127.0.0.1:14570"])
+    assert other.startswith("listening on 127.0.0.1:14570") and "14550" not in other
+    assert gcs_banner([]) == "none (--no-gcs)"
