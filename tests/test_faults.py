@@ -444,3 +444,21 @@ def test_the_cycle_log_says_when_each_wings_sensor_was_read(tmp_path):
         assert "read" not in right
     finally:
         r.close()
+
+
+def test_a_bias_above_the_warp_range_is_capped_and_said(tmp_path):
+    """WB_BIAS above WB_MAXWARP holds each wing at full warp at neutral aileron: taken, capped, and the ground
+    station is told; one inside the range says nothing."""
+    r = Rig(tmp_path)
+    try:
+        r.tick(20)
+        r.bridge.store.set("WB_MAXWARP", 10.0)
+        r.bridge.store.set("WB_BIAS", 6.0)
+        r.tick(20)
+        assert r.count("capped") == 0
+        r.bridge.store.set("WB_BIAS", 12.0)
+        r.tick(20)
+        assert r.count("WB bias 12 capped at WB_MAXWARP 10 deg") == 1
+        assert all(m.neutral_deg == 10.0 for m in r.bridge.mixer.wings.values())
+    finally:
+        r.close()
