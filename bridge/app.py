@@ -326,10 +326,11 @@ class Bridge:
             for wname, w in self.wings.items():
                 w.ctl.set_model(self.tuning.wing_model(wname), w_max=self.mixer.wings[wname].max_warp_deg)
                 w.ctl.set_deadband(self._deadband(wname))
-            asked = v if name == "WB_BIAS" else (None if self._starting else self.store.get("WB_BIAS"))
-            capped = [m.bias_deg for m in self.mixer.wings.values() if asked is not None and m.bias_deg < asked - 1e-6]
-            if capped and not self._starting:  # the bias sits at the top of the range: the wing holds full warp
-                self.telemetry.status(SEV_NOTICE, f"WB bias {asked:g} capped at WB_MAXWARP {max(capped):g} deg")
+            if not self._starting:  # a bias above the range is held at its top: the wing holds full warp
+                asked = v if name == "WB_BIAS" else self.store.get("WB_BIAS")
+                held = max(m.bias_deg for m in self.mixer.wings.values())
+                if held < asked - 1e-6:
+                    self.telemetry.status(SEV_NOTICE, f"WB bias {asked:g} capped at WB_MAXWARP {held:g} deg")
         elif name == "WB_TLM_HZ":
             self.telemetry.rate_hz = v
             self.telemetry.period = 1.0 / v if v > 0 else math.inf

@@ -75,15 +75,19 @@ def _chosen(argv: list[str], names: set[str]) -> str | None:
     return None
 
 
+def needs_default(action: argparse.Action, text: str) -> bool:
+    """Whether an option's help ``text`` should be followed by its default: it takes a value, has a default,
+    and the text does not give it already (``--help`` and docs/commands.md alike)."""
+    return bool(action.option_strings) and action.nargs != 0 and "default" not in text \
+        and action.default not in (None, "", [], argparse.SUPPRESS)
+
+
 class DefaultsFormatter(argparse.HelpFormatter):
-    """Help that gives an option's default where its text does not already (as docs/commands.md does)."""
+    """Help that gives an option's default where its text does not already (``needs_default``)."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
-        if action.option_strings and action.nargs != 0 and "default" not in text \
-                and action.default not in (None, "", [], argparse.SUPPRESS):
-            text += " (default %(default)s)"
-        return text
+        return text + " (default %(default)s)" if needs_default(action, text) else text
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:

@@ -187,20 +187,16 @@ def test_the_common_options_count_before_and_after_the_command(recording_command
     assert bool(module.seen["quiet"]) is own_quiet
 
 
-def test_an_unknown_option_shows_the_commands_usage(recording_command, capsys):
+@pytest.mark.parametrize(("argv", "usage", "unknown"), [
+    (["diagnose", "--max-dealy", "0.1"], "usage: warpbridge diagnose", "--max-dealy 0.1"),  # the command's usage
+    (["--bogus", "diagnose"], "usage: warpbridge [", "--bogus"),  # before the command: the top level's
+])
+def test_an_unknown_option_shows_the_usage_of_where_it_was_given(recording_command, capsys, argv, usage, unknown):
     with pytest.raises(SystemExit) as e:
-        cli.main(["diagnose", "--max-dealy", "0.1"])
+        cli.main(argv)
     assert e.value.code == 2
     err = capsys.readouterr().err
-    assert err.startswith("usage: warpbridge diagnose") and "unrecognized arguments: --max-dealy 0.1" in err
-
-
-def test_an_unknown_option_before_the_command_shows_the_top_level_usage(recording_command, capsys):
-    with pytest.raises(SystemExit) as e:
-        cli.main(["--bogus", "diagnose"])
-    assert e.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith("usage: warpbridge [") and "unrecognized arguments: --bogus" in err
+    assert err.startswith(usage) and f"unrecognized arguments: {unknown}" in err
 
 
 def test_the_version_after_a_command(recording_command, capsys):

@@ -47,13 +47,14 @@ def _option_name(action: argparse.Action) -> str:
 
 
 def _help(action: argparse.Action) -> str:
+    from warpbridge.bridge import cli
+
     text = action.help or ""
     if "%(default)" in text:
         text = text % {"default": action.default}
     if action.required:
         text += " (required)"
-    if action.option_strings and action.nargs != 0 and action.default not in (None, "", [], argparse.SUPPRESS) \
-            and "default" not in text:
+    if cli.needs_default(action, text):
         text += f" (default {action.default})"
     if isinstance(action, argparse._AppendAction) and "repeatable" not in text:
         text += " (repeatable)"
