@@ -93,7 +93,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", choices=SCENARIO_NAMES, default=None,
                         help="what the FC commands (default: random; --lockstep: random, gust7, gust12)")
     parser.add_argument("--duration", type=float, default=20.0, metavar="S",
-                        help="seconds of control to run (default 20)")
+                        help="seconds of control to run (default 20; Ctrl-C stops a real-time run early and "
+                             "compares the part flown)")
     parser.add_argument("--out", type=Path, default=None,
                         help="output directory (default ./sitl-run-<time>)")
     parser.add_argument("--lockstep", action="store_true",
@@ -536,6 +537,7 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
     vrig = VirtualRig(rig, wings)
     emu = MaestroEmulator(on_target=vrig.on_target, read_analog=vrig.read_analog)
     mock = bridge = None
+    interrupted: float | None = None  # s of flight when Ctrl-C stopped the run
     bridge_log = out / "bridge-cycles.csv"
     t_start = time.monotonic()
     model_file = "paper" if args.bridge_model == "paper" else str(Path(args.bridge_model).resolve())
@@ -579,8 +581,16 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
                     "the mock autopilot to stream servo outputs to the bridge")
         t_stream = vrig.now()
         print(f"sitl: FC streaming to the bridge ({t_stream - t_mock:.1f} s); flying "
-              f"{HOLD_S + args.duration:g} s in real time ...", flush=True)
-        _fly(HOLD_S + args.duration + END_MARGIN_S, vrig, t_stream, children, out)
+              f"{HOLD_S + args.duration:g} s in real time (Ctrl-C: stop and compare the part flown) ...",
+              flush=True)
+        try:
+            _fly(HOLD_S + args.duration + END_MARGIN_S, vrig, t_stream, children, out)
+        except Terminated:
+            raise
+        except KeyboardInterrupt:  # Ctrl-C: the part flown is compared (a second one quits)
+            interrupted = vrig.now() - t_stream
+            print(f"\nsitl: stopped after {interrupted:.1f} s of flight; comparing the part flown "
+                  "(Ctrl-C again to quit) ...", flush=True)
     finally:
         _stop_child(bridge, "bridge", signal.SIGTERM)  # the bridge closes its log on SIGTERM as on Ctrl-C
         _stop_child(mock, "mock autopilot", signal.SIGTERM)
@@ -606,6 +616,9 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
     t_from = max(HOLD_S, float(rt.t[np.argmax(fl)])) + SETTLE_S
     t_to = min(HOLD_S + args.duration, float(rt.t[-1]))
     if t_to - t_from < 1.0:
+        if interrupted is not None:
+            raise UserError(f"stopped after {interrupted:.1f} s of flight, too early to compare (the scenario "
+                            f"starts after a {HOLD_S:g} s neutral hold); logs: {out}")
         raise UserError(f"the bridge followed the FC for only {max(0.0, t_to - t_from + SETTLE_S):.1f} s")
     print("sitl: flying the same stretch in lock-step (the bridge's cycle on a simulated clock) ...", flush=True)
     runs = {}
@@ -617,7 +630,8 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
                      rig_read=rig_reads(vrig, read_idx))
     stages = (("lock-step", replay), ("ideal timing", sched))
     for i, (label, sch) in enumerate(stages, start=1):
-        with stage_progress(f"sitl: lock-step {i}/{len(stages)} ({label})", t_to + 0.05) as progress:
+        with stage_progress(f"sitl: lock-step {i}/{len(stages)} ({label})", t_to + 0.05) as progress, \
+                simulated_bridges_quiet():
             runs[label], _ = run_lockstep(
                 scenario, mode=args.mode, spec=spec,
                 config=rig_config(rig, args.mode, kw["kp"], kw["ki"], model_file=model_file), seed=args.seed,
@@ -650,12 +664,17 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
                             "stream_start_s": sched.stream_start_s, "wake_on_message": sched.wake_on_message},
                "rms_deg": {"realtime": rt.rms, "lockstep": ls.rms, "lockstep_ideal_timing": ideal.rms},
                "rel_diff": rel, "agree": agree, "params_set_in_run": changed,
-               "cycles": int(rt.cycles), "cycles_lockstep": int(ls.cycles), "cycles_logged": int(cyc["t"].size)}
+               "cycles": int(rt.cycles), "cycles_lockstep": int(ls.cycles), "cycles_logged": int(cyc["t"].size),
+               "stopped_after_s": interrupted}
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     if not args.no_plot:
         png = plot_run(rt, out / "sitl.png", title=f"SITL real time: {name}, {args.mode}", other=ls)
         print(f"plot: {png}")
     print(f"logs: {out}")
+    if interrupted is not None:
+        print(f"sitl: the run was stopped after {interrupted:.1f} s of the {HOLD_S + args.duration:g} s asked for; "
+              f"the figures cover {t_from:.2f} .. {t_to:.2f} s")
+        return 130
     return 0
 
 
@@ -865,5 +884,9 @@ def main(args: argparse.Namespace) -> int:
             signal.signal(s, h)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM: the run stops and nothing is compared."""
+
+
 def _raise_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -184,3 +185,27 @@ def test_a_wing_on_a_sub_step_grid_integrates_the_same_however_often_it_is_advan
             wing.set_pulse(pulse)
     assert often.w_true == pytest.approx(seldom.w_true, abs=1e-12) and often.u_mm == pytest.approx(seldom.u_mm)
     assert seldom.w_true != pytest.approx(6.0, abs=0.5)  # it moved
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_run_and_compares_the_part_flown(tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "warpbridge.bridge.cli", "sitl", "--duration", "120", "--out", str(out), "--no-gcs",
+         "--no-plot"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stdout:  # "sitl: 5 / 121 s" once five seconds of the scenario are flown
+            if line.startswith("sitl: 5 /"):
+                break
+        proc.send_signal(signal.SIGINT)
+        rest, err = proc.communicate(timeout=180)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, rest + err
+    assert "stopped after" in rest and "real time vs lock-step" in rest, rest + err
+    summary = json.loads((out / "summary.json").read_text())
+    t_from, t_to = summary["stretch_s"]
+    assert 5.0 <= summary["stopped_after_s"] < 60.0
+    assert 2.0 <= t_to - t_from and t_to < 60.0  # the part flown, not the 121 s asked for
+    assert summary["rms_deg"]["realtime"]["left"] == pytest.approx(summary["rms_deg"]["lockstep"]["left"], rel=0.2)
+    assert "warpbridge.bridge.app" not in err  # the replays' simulated bridges keep quiet
