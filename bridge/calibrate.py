@@ -167,6 +167,15 @@ class WingCal:
     def model(self, base: BoucWenParams) -> BoucWenParams:
         return self.params if self.params is not None else self.transform.apply(base)
 
+    def describe(self) -> str:
+        """What the wing flies with this calibration, in a few words (STATUSTEXT-sized)."""
+        if self.params is not None:
+            return "full re-fit"
+        t = self.transform
+        if t == Transform():
+            return "base model"
+        return f"{t.offset:+.2f} mm, gain {t.gain:.3f}, width {t.az_scale:.2f}"
+
     def to_dict(self) -> dict:
         d: dict[str, Any] = {"transform": self.transform.to_dict(), "report": self.report}
         if self.params is not None:
@@ -306,6 +315,7 @@ class FieldTuning:
         self.cal_amp = 1.0
         self._run: _Run | None = None
         self.last_results: dict[str, RefitResult | str] = {}
+        self.last_restore = ""  # what each wing flies after the last restore, e.g. "left base model"
         self._ready = False
         self._internal = False  # True while the bridge itself sets one of our parameters
         self.adapt_on = True
@@ -521,7 +531,11 @@ class FieldTuning:
             raise Refused("no previous model to restore")
         for name in swapped:
             self._apply_wing_model(name)
-        self.telemetry.status(SEV_NOTICE, f"WB cal: previous model restored ({', '.join(swapped)})")
+        # a restore swaps the two: say what flies now (a second restore brings the other back)
+        now = "; ".join(f"{name} {self.store.get(name).describe()}" for name in swapped)
+        self.last_restore = now
+        log.info("previous model restored: %s flies now (restore again to swap back)", now)
+        self.telemetry.status(SEV_NOTICE, f"WB cal restored: {now}", log_it=False)
 
     def abort(self, reason: str) -> None:
         run = self._run

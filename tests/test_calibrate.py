@@ -141,10 +141,13 @@ def test_calibration_applies_a_passing_model_persists_it_and_can_be_rolled_back(
     # rollback: the previous (base) model, and setting it again undoes the rollback
     rig.bridge.store.set("WB_CAL_REST", 1)
     assert rig.models() == base
+    assert rig.link.texts[-1] == "WB cal restored: left base model; right base model"  # what flies now
     rig.run(0.05)
     assert rig.bridge.store.get("WB_CAL_REST") == 0  # a one-shot
     rig.bridge.store.set("WB_CAL_REST", 1)
     assert rig.models() == calibrated
+    offset = tuning.last_results["left"].transform.offset
+    assert rig.link.texts[-1].startswith(f"WB cal restored: left {offset:+.2f} mm, gain ")
     assert rig.command(3).result == mavlink.MAV_RESULT_ACCEPTED  # the same by command
     assert rig.models() == base
 

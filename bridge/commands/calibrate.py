@@ -75,7 +75,7 @@ def _calibrate(args: argparse.Namespace, config: Config, bridge: Bridge) -> int:
         try:
             if args.restore:
                 tuning.restore()
-                print("previous model restored")
+                print(f"previous model restored: {tuning.last_restore} (--restore again swaps back)")
                 return 0
             tuning.start_calibration(full=args.full, source="command line")
         except Refused as e:
