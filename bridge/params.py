@@ -22,6 +22,7 @@ import json
 import logging
 import math
 import os
+import struct
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -68,7 +69,8 @@ class ParamSpec:
             raise ValueError(f"{self.name}: integer parameter with non-integer default or bounds")
 
     def validate(self, value: Any) -> float:
-        """Return ``value`` as stored (clamped onto a bound within float32 error) or raise ParamError."""
+        """Return ``value`` as stored (clamped onto a bound within float32 error, at float32's precision: see
+        ``_float32_shortest``) or raise ParamError."""
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ParamError(f"{self.name}: not a number: {value!r}")
         try:
@@ -81,13 +83,29 @@ class ParamSpec:
             raise ParamError(f"{self.name}: {_fmt(v)} below min {_fmt(self.min)}")
         if v > self.max + _F32_TOL * max(1.0, abs(self.max)):
             raise ParamError(f"{self.name}: {_fmt(v)} above max {_fmt(self.max)}")
-        v = min(max(v, self.min), self.max)
+        v = _float32_shortest(min(max(v, self.min), self.max))
         if self.integer:
             r = round(v)
             if abs(v - r) > _F32_TOL * max(1.0, abs(v)):
                 raise ParamError(f"{self.name}: must be a whole number, got {_fmt(v)}")
             v = float(r)
         return v
+
+
+def _float32(v: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", v))[0]
+
+
+def _float32_shortest(v: float) -> float:
+    """The shortest decimal that MAVLink's float32 carries as the same value as ``v``: a value set from a
+    ground station is stored as typed (0.6, where the float32 reads 0.6000000238418579), and one set to the
+    default is the default."""
+    f = _float32(v)
+    for digits in range(1, 10):
+        d = float(f"{f:.{digits}g}")
+        if _float32(d) == f:
+            return d
+    return f
 
 
 def _fmt(v: float) -> str:

@@ -260,11 +260,14 @@ def test_set_is_applied_echoed_and_persisted(setup, tmp_path):
     m = recv(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "WB_KP")
     assert m.param_value == pytest.approx(9.5) and m.param_count == len(store) and m.param_index == 0
     assert store.get("WB_KP") == 9.5
-    gcs.mav.param_set_send(1, 0, b"WB_KI", 2.0, mavlink.MAV_PARAM_TYPE_REAL32)  # MAV_COMP_ID_ALL
+    gcs.mav.param_set_send(1, 0, b"WB_KI", 2.3, mavlink.MAV_PARAM_TYPE_REAL32)  # MAV_COMP_ID_ALL
     m = recv(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "WB_KI")
-    assert m.param_value == pytest.approx(2.0)
+    assert m.param_value == pytest.approx(2.3)
+    gcs.mav.param_set_send(1, 191, b"WB_DEADBAND", 0.08, mavlink.MAV_PARAM_TYPE_REAL32)  # the default again
+    recv(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "WB_DEADBAND")
     assert store.flush()
-    assert json.loads((tmp_path / "p.json").read_text())["params"] == {"WB_KP": 9.5, "WB_KI": 2.0}
+    # stored as typed, not as float32 read back (2.299999952316284), and the default is not stored
+    assert json.loads((tmp_path / "p.json").read_text())["params"] == {"WB_KP": 9.5, "WB_KI": 2.3}
 
 
 def echo_and_text(gcs, name: str):
