@@ -43,9 +43,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import serial
+
 from warpbridge.bridge.mavlink_env import mavlink, mavutil
 from warpbridge.bridge.signing import Signer, SigningPolicy
-from warpbridge.hw.base import open_error_text
+from warpbridge.hw.base import lock_exclusive, open_error_text
 
 log = logging.getLogger(__name__)
 
@@ -140,6 +142,19 @@ def _count(table: dict[str, int], key: str) -> None:
     if key not in table and len(table) >= _MAX_TYPE_KEYS:
         key = "OTHER"
     table[key] = table.get(key, 0) + 1
+
+
+def _lock_serial(conn: Any) -> None:
+    """Hold a serial FC port exclusively, as the Maestro's (``hw.base.lock_exclusive``); when another
+    process holds it, the connection is closed and the ``BlockingIOError`` raised."""
+    port = getattr(conn, "port", None)
+    if not isinstance(port, serial.Serial):
+        return
+    try:
+        lock_exclusive(port.fileno())
+    except OSError:
+        conn.close()
+        raise
 
 
 def _post_message(msg: Any) -> None:
@@ -242,7 +257,8 @@ class FcLink:
                 autoreconnect=False,
                 retries=0,
             )
-        except Exception as e:  # serial.SerialException, OSError, socket errors
+            _lock_serial(conn)
+        except Exception as e:  # serial.SerialException, OSError, socket errors, the port in use
             delay = _BACKOFF_S[min(self._backoff_index, len(_BACKOFF_S) - 1)]
             self._backoff_index += 1
             self._reconnect_at = self.clock() + delay

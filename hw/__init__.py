@@ -15,6 +15,7 @@ Backends are chosen by a string, like pyserial URLs (the interfaces are in ``hw.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from warpbridge.hw.base import NullSensor, ServoOutput, WarpSensor, parse_serial_spec
@@ -100,6 +101,11 @@ def sensor_on_servo_port(sensor_spec: str, servo_spec: str) -> bool:
     return servo_url is not None and (not rest.strip() or _maestro(rest, 0)[0] == servo_url)
 
 
+def _same_device(a: str, b: str | None) -> bool:
+    """Whether two port names are one device (``/dev/serial/by-id/...`` is a link to ``/dev/ttyACM0``)."""
+    return b is not None and (a == b or ("://" not in a + b and os.path.realpath(a) == os.path.realpath(b)))
+
+
 def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpSensor:
     """Open the sensor backend named by ``spec``.
 
@@ -113,7 +119,7 @@ def open_sensor(spec: str, *, shared_servo: Any = None, **options: Any) -> WarpS
     if kind == "maestro":
         from warpbridge.hw.maestro import DEFAULT_BAUD, Maestro
 
-        same_port = not rest.strip() or _maestro(rest, 0)[0] == getattr(shared_servo, "url", None)
+        same_port = not rest.strip() or _same_device(_maestro(rest, 0)[0], getattr(shared_servo, "url", None))
         if isinstance(shared_servo, Maestro) and same_port:
             return shared_servo
         if not rest.strip():

@@ -6,11 +6,14 @@ URLs. A serial backend takes ``<pyserial url or device>[,baud]``: anything
 of a real port to stderr (``spy:///dev/ttyACM0?file=wing.txt`` to a file) when a wing
 misbehaves in the field. ``SerialDevice`` opens the port, maps every port failure
 (``SerialException``, ``OSError``) to ``hw.errors.DeviceError``, and re-opens on
-request; a backend fills in only its protocol.
+request; a backend fills in only its protocol. A device path is opened exclusively (an
+advisory ``flock``, as pyserial's ``exclusive``): a second bridge, or any program that locks its
+ports the same way, cannot open a port this one has open, and is told it is in use.
 """
 
 from __future__ import annotations
 
+import errno as errno_codes
 import logging
 import math
 import os
@@ -24,10 +27,12 @@ import serial
 from warpbridge.hw.errors import DeviceError
 
 try:
+    import fcntl
     import termios
 
     _TERMIOS_ERRORS: tuple[type[BaseException], ...] = (termios.error,)
 except ImportError:  # not POSIX
+    fcntl = None  # type: ignore[assignment]
     _TERMIOS_ERRORS = ()
 
 log = logging.getLogger(__name__)
@@ -36,11 +41,23 @@ PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError,
 """What pyserial raises when a port goes away (termios.error on a hung-up tty)."""
 
 
+PORT_IN_USE = "in use by another process (another bridge on the same port?)"
+
+
+def lock_exclusive(fd: int) -> None:
+    """Take the advisory lock pyserial's ``exclusive=True`` takes on a port's ``fd`` (for ports opened by
+    another library); raises ``BlockingIOError`` (EAGAIN) when another open file holds it."""
+    if fcntl is not None:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
 def open_error_text(exc: BaseException) -> str:
     """Why a port did not open, said once: pyserial repeats the port and the errno in its text
     ("could not open port /dev/ttyACM0: [Errno 2] No such file or directory: '/dev/ttyACM0'"), the
     system's words for the errno do not."""
     errno = getattr(exc, "errno", None)
+    if errno in (errno_codes.EAGAIN, errno_codes.EWOULDBLOCK):  # the exclusive lock (``lock_exclusive``)
+        return PORT_IN_USE
     if isinstance(errno, int) and errno > 0:
         return os.strerror(errno)
     return getattr(exc, "strerror", None) or str(exc)  # a resolver's error (negative errno) says it itself
@@ -128,7 +145,8 @@ class SerialDevice:
     def _open(self) -> None:
         try:
             port = serial.serial_for_url(
-                self.url, baudrate=self.baudrate, timeout=self.timeout, write_timeout=self.write_timeout
+                self.url, baudrate=self.baudrate, timeout=self.timeout, write_timeout=self.write_timeout,
+                exclusive=True,
             )
         except (*PORT_ERRORS, ValueError) as exc:
             raise DeviceError(f"cannot open {self.url}: {open_error_text(exc)}", self.name) from exc

@@ -351,8 +351,10 @@ def test_pyserial_exceptions_are_oserrors():
 
 def test_maestro_spec_takes_a_read_timeout(board):
     path = board.emu.device_path
-    with hw.open_servo(f"maestro:{path},timeout=0.3") as m, hw.open_servo(f"maestro:{path},57600") as plain:
-        assert (m.timeout, m.baudrate) == (0.3, 115200) and plain.timeout == 0.02
+    with hw.open_servo(f"maestro:{path},57600") as plain:
+        assert (plain.timeout, plain.baudrate) == (0.02, 57600)
+    with hw.open_servo(f"maestro:{path},timeout=0.3") as m:
+        assert (m.timeout, m.baudrate) == (0.3, 115200)
         assert hw.open_sensor(f"maestro:{path},timeout=0.3", shared_servo=m) is m  # the same port
     for bad in ("timeout=x", "timeout=0", "timeout=20"):
         with pytest.raises(ValueError, match="timeout"):
@@ -370,3 +372,30 @@ def test_a_port_that_does_not_open_is_named_with_its_cause_once(tmp_path):
         Maestro(str(tmp_path / "ttyACM0"), 115200)
     assert str(e.value).endswith(f"cannot open {tmp_path / 'ttyACM0'}: No such file or directory")
     assert open_error_text(socket.gaierror(-2, "Name or service not known")) == "Name or service not known"
+
+
+def test_a_port_one_bridge_has_open_is_refused_to_another_as_in_use(board, maestro, tmp_path):
+    """Two configurations naming one board: the second process is told the port is in use, not left to
+    interleave its bytes with the first's; the first's port still works, and a closed port opens again."""
+    import subprocess
+    import sys
+
+    path = board.emu.device_path
+    probe = ("import sys\nfrom warpbridge import hw\nfrom warpbridge.hw.errors import DeviceError\n"
+             "try:\n    hw.open_servo(sys.argv[1]).close()\nexcept DeviceError as e:\n    print(e)\n"
+             "    sys.exit(3)\n")
+    other = subprocess.run([sys.executable, "-c", probe, f"maestro:{path}"], capture_output=True, text=True,
+                           timeout=60)
+    assert other.returncode == 3, other.stdout + other.stderr
+    assert other.stdout.strip() == f"maestro: cannot open {path}: in use by another process (another bridge on " \
+                                   "the same port?)"
+    maestro.set_pulse(0, 1500.0)
+    assert maestro.read_pulse(0) == 1500.0
+    # a sensor naming the servo's board by another name (a /dev/serial/by-id link) shares its port
+    link = tmp_path / "usb-Pololu_Maestro-if00"
+    link.symlink_to(path)
+    assert hw.open_sensor(f"maestro:{link}", shared_servo=maestro) is maestro
+    maestro.close()
+    again = subprocess.run([sys.executable, "-c", probe, f"maestro:{path}"], capture_output=True, text=True,
+                           timeout=60)
+    assert again.returncode == 0, again.stdout + again.stderr

@@ -190,6 +190,31 @@ def test_missing_serial_device_backs_off_without_raising():
     assert link.poll() == [] and not link.is_open
 
 
+def test_a_serial_fc_port_another_link_holds_is_refused_as_in_use():
+    """The FC's serial port is held exclusively, as the Maestro's: a second bridge on it is told why it
+    cannot open it, and gets it once the first lets go."""
+    import os
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    device = os.ttyname(slave)
+    clock = FakeClock()
+    first, second = FcLink(f"{device},57600", clock=clock), FcLink(f"{device},57600", clock=clock)
+    try:
+        assert first.open() and first.is_open
+        assert not second.open() and not second.is_open
+        assert second.open_error == "in use by another process (another bridge on the same port?)"
+        first.close()
+        clock.t += 10
+        assert second.open()
+    finally:
+        first.close()
+        second.close()
+        os.close(master)
+        os.close(slave)
+
+
 def test_reconnects_when_tcp_peer_goes_away():
     server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
