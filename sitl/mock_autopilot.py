@@ -693,6 +693,13 @@ class MockAutopilot:
                     self._next_due[msg_id] = time.monotonic()
             log.info("message %d interval set to %.0f us", msg_id, interval_us)
             return mavlink.MAV_RESULT_ACCEPTED
+        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:  # from a ground station: no pre-arm checks to fail
+            if msg.param1 not in (0.0, 1.0):
+                return mavlink.MAV_RESULT_DENIED
+            self.set_armed(msg.param1 == 1.0)
+            log.info("%s by COMMAND_LONG from %d/%d", "armed" if self.armed else "disarmed", msg.get_srcSystem(),
+                     msg.get_srcComponent())
+            return mavlink.MAV_RESULT_ACCEPTED
         if cmd == mavlink.MAV_CMD_DO_SET_SERVO:
             if self.autopilot != "ardupilot":
                 return mavlink.MAV_RESULT_UNSUPPORTED
@@ -734,7 +741,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amplitude", type=float, default=300.0, help="sine/steps amplitude, us")
     p.add_argument("--freq", type=float, default=0.5, help="sine/steps frequency, Hz")
     p.add_argument("--airspeed", type=float, default=12.0, help="VFR_HUD airspeed, m/s")
-    p.add_argument("--armed", action="store_true")
+    p.add_argument("--armed", action="store_true",
+                   help="start armed (a ground station arms and disarms it with MAV_CMD_COMPONENT_ARM_DISARM too)")
     p.add_argument("--output-function", action="append", default=[], metavar="CH=ROLE",
                    help="what output CH does (aileron, elevator, rudder, throttle, disabled, left_elevon, ...); "
                         "default 1,2 aileron, 3 throttle, 4 rudder")

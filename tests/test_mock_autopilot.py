@@ -109,6 +109,20 @@ def test_servo_and_actuator_commands(ends):
     assert [c.command for c in ap.commands][:1] == [mavlink.MAV_CMD_DO_SET_SERVO]
 
 
+def test_a_ground_station_arms_and_disarms_it(ends):
+    make, bridge, _ = ends
+    ap = make(autopilot="px4")
+    armed = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    assert not recv(bridge, "HEARTBEAT").base_mode & armed
+    bridge.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    assert recv(bridge, "COMMAND_ACK").result == mavlink.MAV_RESULT_ACCEPTED and ap.armed
+    assert recv(bridge, "HEARTBEAT", cond=lambda m: m.base_mode & armed) is not None
+    bridge.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0.5, 0, 0, 0, 0, 0, 0)
+    assert recv(bridge, "COMMAND_ACK").result == mavlink.MAV_RESULT_DENIED and ap.armed
+    bridge.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 0, 0, 0, 0, 0)
+    assert recv(bridge, "COMMAND_ACK").result == mavlink.MAV_RESULT_ACCEPTED and not ap.armed
+
+
 def test_routes_gcs_requests_to_the_bridge_and_bridge_messages_to_the_gcs(ends):
     make, bridge, gcs = ends
     mock = make(autopilot="ardupilot")
