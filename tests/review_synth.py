@@ -82,3 +82,11 @@ def write_cycle_log(path: Path, cycle: dict, with_fc_t: bool = True) -> Path:
             w.write(float(t), "ff+pi", float(cycle["airspeed"][i]), wings,
                     fc_t=float(cycle["fc_t"][i]) if with_fc_t else None)
     return path
+
+
+def placeholder_log(folder: Path, name: str = "synthetic.BIN") -> Path:
+    """A file for the command's argument where the test hands the FC log in directly (the command checks that
+    its inputs exist before reading them)."""
+    path = folder / name
+    path.write_bytes(b"\xa3\x95\x80")
+    return path

@@ -171,7 +171,7 @@ def test_px4_debug_key_value_are_the_bridges_named_values(tmp_path):
 # ------------------------------------------------------------------------------------------------ tlog clock
 
 
-def _tlog(path: Path, boot0: float, wall0: float, drop_bridge: set[int]) -> None:
+def _tlog(path: Path, boot0: float, wall0: float, drop_bridge: set[int], mav_type: int = 1) -> None:
     """A tlog as a ground station writes it: 8-byte big-endian microseconds of reception, then the frame."""
     fc = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     br = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
@@ -185,7 +185,7 @@ def _tlog(path: Path, boot0: float, wall0: float, drop_bridge: set[int]) -> None
             boot = boot0 + 0.05 * k  # FC clock
             wall = wall0 + 0.05 * k + 0.002 + 0.003 * (k % 3)  # reception: 2..8 ms later
             if k % 20 == 0:
-                put(fc, mavlink.MAVLink_heartbeat_message(1, 3, 0, 0, 0, 3), wall)
+                put(fc, mavlink.MAVLink_heartbeat_message(mav_type, 3, 0, 0, 0, 3), wall)
             put(fc, mavlink.MAVLink_attitude_message(int(boot * 1e3) & 0xFFFFFFFF, 0.1, 0, 0, 0.2, 0, 0), wall)
             usec = int(boot * 1e6) & 0xFFFFFFFF
             put(fc, mavlink.MAVLink_servo_output_raw_message(usec, 0, 1500 + k, 1500, 1000, 1500, 0, 0, 0, 0), wall)
@@ -222,5 +222,114 @@ def test_unreadable_logs_are_refused_in_one_line(tmp_path):
         read_fc_log(tmp_path / "missing.ulg")
     bad = tmp_path / "bad.ulg"
     bad.write_bytes(b"not a ulog at all" * 10)
-    with pytest.raises(UserError, match="not a readable ULog"):
+    with pytest.raises(UserError, match="not a DataFlash/ULog/tlog file"):
         read_fc_log(bad)
+
+
+# ------------------------------------------------------------------------------------------------ bad and old logs
+
+
+def _df_message(mtype: int, body: bytes) -> bytes:
+    return b"\xa3\x95" + bytes([mtype]) + body
+
+
+def _df_fmt(mtype: int, name: str, fmt: str, columns: str) -> bytes:
+    length = 3 + struct.calcsize("<" + fmt.replace("c", "h").replace("Z", "64s"))
+    return _df_message(0x80, struct.pack("<BB4s16s64s", mtype, length, name.encode(), fmt.encode(),
+                                         columns.encode()))
+
+
+def _old_dataflash(path: Path) -> None:
+    """A DataFlash log as ArduPilot wrote them before 2015: RCOU and ATT stamped TimeMS (ms), Chan1..Chan8,
+    the firmware's banner in MSG."""
+    out = _df_message(0x80, struct.pack("<BB4s16s64s", 0x80, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns"))
+    out += _df_fmt(0x81, "RCOU", "IHHHHHHHH", "TimeMS,Chan1,Chan2,Chan3,Chan4,Chan5,Chan6,Chan7,Chan8")
+    out += _df_fmt(0x82, "ATT", "Icc", "TimeMS,Roll,Pitch")
+    out += _df_fmt(0x83, "MSG", "Z", "Message")
+    out += _df_message(0x83, struct.pack("<64s", b"ArduPlane V2.78b"))
+    for k in range(200):
+        ms = 10_000 + 20 * k
+        out += _df_message(0x81, struct.pack("<IHHHHHHHH", ms, 1500 + k, 1500, 1100, 1500, 0, 0, 0, 0))
+        out += _df_message(0x82, struct.pack("<Ihh", ms, 100 * (k % 30), 0))
+    path.write_bytes(out)
+
+
+def test_a_log_stamped_in_milliseconds_is_read(tmp_path):
+    p = tmp_path / "old.BIN"
+    _old_dataflash(p)
+    fc = read_fc_log(p)
+    assert fc.outputs_t.size == 200 and fc.outputs_t[0] == pytest.approx(10.0) and fc.span[1] == pytest.approx(13.98)
+    assert fc.output(1).v[-1] == 1699 and fc.output(3).v[0] == 1100
+    assert fc.roll.v[5] == pytest.approx(5.0)  # centi-degrees
+    assert fc.mav_type == 1 and fc.vehicle == "FIXED_WING"
+
+
+@pytest.mark.parametrize("name", ["text.BIN", "random.BIN", "text.tlog", "random.ulg", "ulog.tlog"])
+def test_a_file_of_no_log_format_is_said_to_be_none(tmp_path, name):
+    p = tmp_path / name
+    if name.startswith("text"):
+        p.write_text("this is a text file, not a flight log\n" * 50)
+    else:
+        p.write_bytes(np.random.default_rng(1).integers(0, 256, 20000, dtype=np.uint8).tobytes()
+                      .replace(b"\xa3\x95", b"\x00\x00").replace(b"ULog", b"xxxx"))
+    if name == "ulog.tlog":  # a ULog renamed: read as what it is
+        p.write_bytes(ULG.read_bytes())
+        assert read_fc_log(p).fmt == "ulog"
+        return
+    with pytest.raises(UserError, match="not a DataFlash/ULog/tlog file"):
+        read_fc_log(p)
+
+
+def test_a_log_without_samples_says_so(tmp_path):
+    p = tmp_path / "formats-only.BIN"
+    p.write_bytes(_df_message(0x80, struct.pack("<BB4s16s64s", 0x80, 89, b"FMT", b"BBnNZ",
+                                                b"Type,Length,Name,Format,Columns")) * 3)
+    with pytest.raises(UserError, match="the FC log holds no samples"):
+        read_fc_log(p)
+
+
+def test_corrupt_bytes_are_counted_not_printed(tmp_path, capfd):
+    data = bytearray(BIN.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 4096] = np.random.default_rng(2).integers(0, 256, 4096, dtype=np.uint8).tobytes().replace(
+        b"\xa3", b"\x00")
+    p = tmp_path / "corrupt.BIN"
+    p.write_bytes(bytes(data))
+    capfd.readouterr()
+    fc = read_fc_log(p)
+    out, err = capfd.readouterr()
+    assert "bad header" not in out + err and "Skipped" not in out + err
+    said = [n for n in fc.notes if n.startswith("skipped ")]
+    assert len(said) == 1 and 4000 <= int(said[0].split()[1]) <= 4200, fc.notes
+    assert not any(n.startswith("skipped") for n in read_fc_log(BIN).notes)
+
+
+# ------------------------------------------------------------------------------------------------ vehicle
+
+
+def test_the_vehicle_type_each_log_carries(dataflash, tmp_path):
+    from warpbridge.bridge.commands.fclog import ardupilot_vehicle, px4_vehicle
+
+    assert (dataflash.mav_type, dataflash.vehicle) == (1, "FIXED_WING") and "ArduPlane" in dataflash.vehicle_source
+    assert read_fc_log(TLOG).mav_type == 1  # the FC's heartbeat
+    assert read_fc_log(ULG).mav_type == 22  # PX4's MAV_TYPE parameter (a VTOL)
+    assert ardupilot_vehicle("ArduCopter V4.5.0-dev (e772012e)", {"FRAME_CLASS": 1.0})[0] == 2
+    assert ardupilot_vehicle("APM:Copter V3.2", {})[0] == 2
+    assert ardupilot_vehicle("ArduCopter V4.3", {"FRAME_CLASS": 6.0})[0] == 4  # a helicopter
+    assert ardupilot_vehicle("", {"SERVO1_FUNCTION": 33.0, "SERVO2_FUNCTION": 34.0})[0] == 43
+    assert ardupilot_vehicle("ArduPlane V4.6.3", {"Q_ENABLE": 1.0})[0] == 20
+    assert ardupilot_vehicle("", {})[0] is None
+    assert px4_vehicle({"CA_AIRFRAME": 0.0})[0] == 2 and px4_vehicle({"MAV_TYPE": 1.0, "CA_AIRFRAME": 0.0})[0] == 1
+    p = tmp_path / "quad.tlog"
+    _tlog(p, boot0=10.0, wall0=1.7e9, drop_bridge=set(), mav_type=2)
+    fc = read_fc_log(p)
+    assert fc.wingless and fc.vehicle == "QUADROTOR" and fc.vehicle_source == "heartbeat MAV_TYPE 2"
+
+
+def test_modes_are_named_by_the_vehicles_table():
+    from warpbridge.bridge.commands.fclog import ardupilot_mode_names
+
+    assert ardupilot_mode_names(2, "ArduCopter V4.5.0")[0] == "STABILIZE"
+    assert ardupilot_mode_names(1, "ArduPlane V4.6.3")[0] == "MANUAL"
+    assert ardupilot_mode_names(20, "ArduPlane V4.6.3")[19] == "QLOITER"
+    assert ardupilot_mode_names(None, "") == {}  # a vehicle the log does not name: numbers, not a plane's names

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 from argparse import Namespace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import pytest
 import review_synth as rs
 
 from warpbridge.bridge.commands import review as review_cmd
-from warpbridge.bridge.commands.fclog import read_fc_log
+from warpbridge.bridge.commands.fclog import Series, read_fc_log
 from warpbridge.bridge.commands.logjoin import Alignment, align, join_mismatch, read_cycle_log, xcorr_lag
 from warpbridge.bridge.commands.review import PHASES, _lost, phases, review
 from warpbridge.bridge.errors import UserError
@@ -187,8 +188,8 @@ def test_review_command_writes_html_and_json(tmp_path, synthetic, monkeypatch):
     monkeypatch.setattr(review_cmd, "read_fc_log", lambda path, progress=None: fc)
     cyc = rs.write_cycle_log(tmp_path / "c.csv", cycle)
     out = tmp_path / "r.html"
-    args = Namespace(log="synthetic.BIN", cyclelog=str(cyc), output=str(out), channel=None, bands="9,15,21,24",
-                     trim=1500.0, half_range=400.0, no_progress=True)
+    args = Namespace(log=str(rs.placeholder_log(tmp_path)), cyclelog=str(cyc), output=str(out), channel=None,
+                     bands="9,15,21,24", trim=1500.0, half_range=400.0, no_progress=True)
     assert review_cmd.main(args) == 0
     page = out.read_text()
     assert page.count("data:image/png;base64,") == 6 and "Roll authority" in page
@@ -277,3 +278,193 @@ def test_real_flight_from_the_tlog_alone(tmp_path):
     rv, flight, _ = review(fc, None)
     assert flight.rate_hz < 20 and rv.warnings
     assert rv.link.tlog_loss
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+
+
+def _args(tmp_path, fc_log, cyclelog=None, **kw) -> Namespace:
+    base = dict(log=str(fc_log), cyclelog=None if cyclelog is None else str(cyclelog), output=str(tmp_path / "r.html"),
+                channel=None, bands=None, trim=1500.0, half_range=400.0, no_progress=True)
+    return Namespace(**{**base, **kw})
+
+
+def _never_read(path, progress=None):
+    raise AssertionError("the FC log was read before the options were checked")
+
+
+def test_a_directory_for_a_log_is_refused_in_one_line(tmp_path, monkeypatch):
+    folder = tmp_path / "cycles"
+    folder.mkdir()
+    with pytest.raises(UserError, match="is a directory"):
+        read_cycle_log(folder)
+    ulg = tmp_path / "x.ulg"
+    ulg.mkdir()
+    with pytest.raises(UserError, match="x.ulg: is a directory"):
+        read_fc_log(ulg)
+    monkeypatch.setattr(review_cmd, "read_fc_log", _never_read)
+    with pytest.raises(UserError, match="cycle log .*cycles: is a directory"):
+        review_cmd.main(_args(tmp_path, rs.placeholder_log(tmp_path), folder))
+
+
+@pytest.mark.parametrize(("option", "said"), [
+    ({"channel": 0}, "--channel 0: outputs are numbered 1 to 32"),
+    ({"channel": -1}, "--channel -1"),
+    ({"channel": 33}, "--channel 33"),
+    ({"half_range": 0.0}, "--half-range 0"),
+    ({"half_range": -400.0}, "--half-range -400"),
+    ({"half_range": math.inf}, "--half-range inf"),
+    ({"trim": math.nan}, "--trim nan"),
+    ({"trim": 15.0}, "--trim 15"),
+    ({"output": "x.json"}, "give the HTML report's name"),
+])
+def test_options_that_cannot_be_right_are_refused_before_reading(tmp_path, monkeypatch, option, said):
+    monkeypatch.setattr(review_cmd, "read_fc_log", _never_read)
+    if option.get("output"):
+        option = {"output": str(tmp_path / option["output"])}
+    with pytest.raises(UserError, match=said):
+        review_cmd.main(_args(tmp_path, rs.placeholder_log(tmp_path), **option))
+
+
+def test_an_output_path_that_is_a_directory_or_an_input_is_refused_before_reading(tmp_path, monkeypatch):
+    monkeypatch.setattr(review_cmd, "read_fc_log", _never_read)
+    fc_log = rs.placeholder_log(tmp_path)
+    (tmp_path / "out").mkdir()
+    for output in (str(tmp_path / "out"), str(tmp_path / "out") + "/"):
+        with pytest.raises(UserError, match="is a directory"):
+            review_cmd.main(_args(tmp_path, fc_log, output=output))
+    with pytest.raises(UserError, match="would overwrite an input"):
+        review_cmd.main(_args(tmp_path, fc_log, output=str(fc_log)))
+
+
+@pytest.mark.parametrize(("text", "said"), [
+    ("nan,20,inf", "finite"), ("20,20", "given twice"), ("-5,5", "negative"), ("x", "not a list"), ("5", "two edges"),
+])
+def test_band_edges_are_validated(text, said):
+    with pytest.raises(UserError, match=said):
+        review_cmd.parse_bands(text)
+    assert review_cmd.parse_bands("14,10,18") == [10.0, 14.0, 18.0]
+
+
+# ------------------------------------------------------------------------------------------------ channel, vehicle
+
+
+def test_channel_is_honoured_with_and_without_the_cycle_log(synthetic):
+    fc, _, cl = synthetic
+    for c in (cl, None):
+        rv, flight, _ = review(fc, c, channel=3)  # output 3 holds 1600 us: not the aileron
+        assert flight.aileron_channel == 3 and np.nanmin(flight.aileron) == 1600
+        assert all(math.isnan(g.ff_ardupilot) and g.no_ff for g in rv.roll_authority if g.reliable)
+        assert any("output 3 (--channel) holds 1600 us" in w for w in rv.warnings)
+        rv, flight, _ = review(fc, c)
+        assert flight.aileron_channel == 1
+        assert any(math.isfinite(g.ff_ardupilot) for g in rv.roll_authority)
+
+
+def test_a_channel_the_log_cannot_carry_or_did_not_log_is_refused(synthetic):
+    fc, _, _ = synthetic
+    with pytest.raises(UserError, match="output 9 is not in this log .outputs logged: 1, 3."):
+        review(fc, None, channel=9)
+    px4 = replace(fc, autopilot="px4")
+    with pytest.raises(UserError, match="--channel 17: px4 logs carry outputs 1 to 16"):
+        review(px4, None, channel=17)
+
+
+def test_a_multirotor_is_refused_unless_the_channel_is_given(synthetic):
+    fc, _, _ = synthetic
+    quad = replace(fc, mav_type=2, vehicle_source="firmware ArduCopter V4.5.0, FRAME_CLASS 1")
+    with pytest.raises(UserError, match="QUADROTOR .firmware ArduCopter.*without a wing.*--channel"):
+        review(quad, None)
+    rv, _, _ = review(quad, None, channel=1)
+    assert any("QUADROTOR" in w and "output 1 reviewed as the aileron" in w for w in rv.warnings)
+    rv, _, _ = review(replace(fc, mav_type=1), None)
+    assert not any("wing to warp" in w for w in rv.warnings)
+
+
+def test_a_guessed_aileron_output_is_said(synthetic):
+    fc, _, _ = synthetic
+    rv, flight, _ = review(replace(fc, aileron_channels=[], params={}), None)
+    assert flight.aileron_channel == 1
+    assert "no aileron function in the log's parameters: guessed output 1 (use --channel)" in rv.warnings
+    rv, _, _ = review(fc, None)
+    assert not any("guessed" in w for w in rv.warnings)
+
+
+def test_an_unchecked_join_is_a_warning(synthetic):
+    fc, _, cl = synthetic
+    bare = replace(fc, outputs_t=np.zeros(0), outputs=np.zeros((0, 16)))
+    rv, _, al = review(bare, cl)
+    assert "alignment not checked: no aileron output in the FC log" in rv.warnings
+    assert review_cmd._join_line(al).endswith("not checked")
+    rv, _, al = review(fc, cl)
+    assert not any("not checked" in w for w in rv.warnings) and "residual" in review_cmd._join_line(al)
+
+
+def test_a_cycle_log_cut_to_a_shorter_fc_log_is_said(synthetic):
+    fc, _, cl = synthetic
+    t0 = fc.outputs_t[0]
+
+    def cut(s):
+        k = s.t < t0 + 30
+        return Series(s.t[k], s.v[k])
+
+    k = fc.outputs_t < t0 + 30
+    short = replace(fc, outputs_t=fc.outputs_t[k], outputs=fc.outputs[k], roll_rate=cut(fc.roll_rate),
+                    airspeed=cut(fc.airspeed), named={n: cut(s) for n, s in fc.named.items()})
+    rv, _, _ = review(short, cl)
+    assert "the FC's log covers 30 s of the cycle log's 60 s: the review keeps those" in rv.warnings
+    rv, _, _ = review(fc, cl)
+    assert not any("covers" in w for w in rv.warnings)
+
+
+# ------------------------------------------------------------------------------------------------ roll authority
+
+
+def test_a_band_with_too_few_samples_is_not_fitted(synthetic):
+    fc, _, _ = synthetic
+    rv, _, _ = review(fc, None, bands=[21.0, 21.5])  # 10 Hz named values: 25 samples in the band
+    (g,) = rv.roll_authority
+    assert 0 < g.n < review_cmd.MIN_BAND_SAMPLES and not g.reliable and math.isnan(g.ff_ardupilot)
+    assert "too few samples to fit" in review_cmd._roll_line(g, px4=False)
+
+
+def test_bands_below_the_airborne_speed_say_the_fit_leaves_them_out(synthetic):
+    fc, _, cl = synthetic
+    slow = replace(fc, airspeed=Series(fc.airspeed.t, fc.airspeed.v - 8.0))  # 2..14 m/s
+    cycle_slow = replace(cl, airspeed=cl.airspeed - 8.0)
+    rv, _, _ = review(slow, cycle_slow, bands=[0.0, 3.0, 6.0, 14.0])
+    track = rv.tracking["left"]["airspeed"]
+    assert track[0].n > 0 and rv.roll_authority[0].n == 0
+    line = review_cmd._roll_line(rv.roll_authority[0], px4=False)
+    assert "no samples in this band (the fit leaves out samples below 6 m/s, not airborne)" in line
+
+
+def test_no_numpy_warnings_on_a_flight_with_unlogged_outputs(synthetic):
+    import warnings
+
+    fc, _, cl = synthetic
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        review(replace(fc, aileron_channels=[], params={}), cl)
+        review(fc, None, bands=[21.0, 21.5])
+
+
+def test_an_output_gain_against_the_warp_gain_implies_no_ff(synthetic):
+    fc, _, _ = synthetic
+    rv, flight, _ = review(fc, None)
+    band = max(rv.roll_authority, key=lambda g: g.n)
+    assert band.no_ff == "" and band.output_r2 > 0.9 and band.output_gain > 0
+    # in that band the FC's output runs against the roll rate, while elsewhere it follows the warp
+    sel = (flight.airspeed >= band.lo_ms) & (flight.airspeed < band.hi_ms)
+    flight.aileron[sel] = 3000.0 - flight.aileron[sel]
+    fits, _ = review_cmd.roll_authority(flight, [(band.lo_ms, band.hi_ms)], 1500.0, 400.0, 15.0)
+    assert fits[0].gain > 0 > fits[0].output_gain and math.isnan(fits[0].ff_ardupilot)
+    assert "sign disagrees" in fits[0].no_ff and "sign disagrees" in review_cmd._roll_line(fits[0], px4=True)
+    assert review_cmd._why_no_ff(20.0, True, -200.0, 0.9, 100, mixer=-1.0) == ""  # a mixer that falls with the output
+    assert "fit is unreliable" in review_cmd._why_no_ff(20.0, True, 200.0, 0.1, 100, mixer=1.0)
+
+
+def test_a_gain_that_rounds_to_zero_is_printed_unsigned():
+    g = review_cmd.GainFit("9-12 m/s", 9.0, 12.0, 100, -0.001, 0.0, 0.01, math.nan, math.nan, False)
+    assert review_cmd._roll_line(g, px4=False).startswith("roll authority 9-12 m/s: 0.00 deg/s per deg (R2 0.01")
+    assert review_cmd._num(-0.0004, 1) == "0.0"

@@ -11,11 +11,15 @@ stamp are put on the FC's clock through the FC's own stamped messages (ATTITUDE,
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import math
 import os
 import re
-from collections.abc import Callable
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,7 +34,14 @@ BRIDGE_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the bridge's named value
 ARDUPILOT_AILERON_FUNCTION = 4  # SERVOn_FUNCTION of an aileron
 PX4_AILERON_TYPES = (1, 2)  # CA_SV_CSn_TYPE: left, right aileron
 PX4_SERVO_FUNCTION0 = 201  # PWM_MAIN_FUNCn of "Servo 1"
-MAX_CHANNELS = 16
+MAX_CHANNELS = 32  # ArduPilot's SERVO1..32 (RCOU, RCO2, RCO3; SERVO_OUTPUT_RAW ports 0 and 1)
+PX4_MAX_CHANNELS = 16  # PX4's actuator_outputs.output[16]
+DF_HEAD = b"\xa3\x95"  # every DataFlash message starts with these
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+MAVLINK_STX = (0xFE, 0xFD)  # MAVLink 1 and 2 frames; a tlog puts 8 bytes of time before each
+SNIFF_BYTES = 65536
+# MAV_TYPEs without a wing to warp: multirotors, helicopters, ground and water vehicles
+WINGLESS_MAV_TYPES = {2, 3, 4, 10, 11, 12, 13, 14, 15, 29, 35, 43, 46}
 US_WRAP = 2**32  # SERVO_OUTPUT_RAW.time_usec is 32 bits: it wraps every 71.6 min
 
 
@@ -92,6 +103,23 @@ class FcLog:
     aileron_channels: list[int] = field(default_factory=list)  # 1-based outputs that drive an aileron
     link_loss: dict[str, tuple[int, int]] = field(default_factory=dict)  # source -> (received, lost), tlog only
     notes: list[str] = field(default_factory=list)
+    mav_type: int | None = None  # the vehicle's MAV_TYPE, as the log says it (None: the log does not say)
+    vehicle_source: str = ""  # what in the log said it
+
+    @property
+    def vehicle(self) -> str:
+        """The vehicle type's name (``FIXED_WING``, ``QUADROTOR``, ...), ``unknown`` when the log does not say."""
+        return mav_type_name(self.mav_type)
+
+    @property
+    def wingless(self) -> bool:
+        """The log says the vehicle has no wing: a multirotor, a helicopter, a ground or water vehicle."""
+        return self.mav_type in WINGLESS_MAV_TYPES
+
+    @property
+    def max_channel(self) -> int:
+        """The highest output number this autopilot's logs can carry."""
+        return PX4_MAX_CHANNELS if self.autopilot == "px4" else MAX_CHANNELS
 
     @property
     def span(self) -> tuple[float, float]:
@@ -102,6 +130,12 @@ class FcLog:
         if not ts:
             return 0.0, 0.0
         return min(float(a[0]) for a in ts), max(float(a[-1]) for a in ts)
+
+    @property
+    def empty(self) -> bool:
+        """Nothing the review reads was logged: no outputs, attitude, rates, airspeed or named values."""
+        return (self.outputs_t.size == 0 and not any(len(s) for s in self.named.values())
+                and all(s is None or len(s) == 0 for s in (self.roll, self.roll_rate, self.airspeed)))
 
     def output(self, channel: int) -> Series | None:
         """Servo output ``channel`` (1-based), us, or None when it was never logged."""
@@ -120,20 +154,128 @@ def fc_log_format(path: str | os.PathLike) -> str | None:
     return FC_LOG_SUFFIXES.get(Path(path).suffix.lower())
 
 
-def read_fc_log(path: str | os.PathLike, progress: Progress | None = None) -> FcLog:
-    """Read a ``.BIN``, ``.tlog`` or ``.ulg``; raises UserError with a one-line reason when it cannot."""
+def mav_type_name(mav_type: int | None) -> str:
+    """``QUADROTOR`` for MAV_TYPE 2, ...; ``unknown`` for None."""
+    if mav_type is None:
+        return "unknown"
+    from pymavlink import mavutil
+
+    entry = mavutil.mavlink.enums["MAV_TYPE"].get(mav_type)
+    return entry.name.removeprefix("MAV_TYPE_") if entry is not None else str(mav_type)
+
+
+def sniff_format(path: Path) -> str | None:
+    """``dataflash``, ``ulog`` or ``tlog`` from the file's first bytes, None when they are none of these."""
+    with path.open("rb") as fh:
+        head = fh.read(SNIFF_BYTES)
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    if head.startswith(DF_HEAD) or DF_HEAD + b"\x80" in head:  # a FMT message, possibly after some junk
+        return "dataflash"
+    # a tlog: 8 bytes of big-endian microseconds, then a MAVLink frame, then the next record
+    for start in (0, 1, 2, 3):
+        k, frames = start, 0
+        while k + 10 < len(head) and frames < 3:
+            stx, n = head[k + 8], head[k + 9]
+            if stx not in MAVLINK_STX:
+                break
+            k += 8 + n + (8 if stx == 0xFE else 12)
+            frames += 1
+        if frames >= 3 or (frames and k >= len(head)):
+            return "tlog"
+    return None
+
+
+def check_readable(path: str | os.PathLike, what: str = "") -> Path:
+    """``path`` as a Path if it is a non-empty file; a UserError saying why not (``what``: the argument)."""
     p = Path(path)
-    fmt = fc_log_format(p)
-    if fmt is None:
-        raise UserError(f"{p}: not a flight controller log (.BIN, .tlog or .ulg)")
+    said = f"{what} {p}" if what else str(p)
+    if p.is_dir():
+        raise UserError(f"{said}: is a directory, not a file")
+    if not p.exists():
+        raise UserError(f"{said}: no such file")
     if not p.is_file():
-        raise UserError(f"{p}: no such file")
+        raise UserError(f"{said}: not a regular file")
     if p.stat().st_size == 0:
-        raise UserError(f"{p}: empty file")
+        raise UserError(f"{said}: empty file")
+    return p
+
+
+@contextlib.contextmanager
+def _library_chatter() -> Iterator[list[str]]:
+    """pymavlink and pyulog print what they skip (one line per byte of a bad block; pymavlink's indexer from C,
+    to the process's stderr): caught, Python's and the C library's alike, to be counted. The list yielded
+    holds the text once the block is left."""
+    captured: list[str] = []
+    buf = io.StringIO()
+    with tempfile.TemporaryFile() as sink:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        try:
+            saved = [os.dup(1), os.dup(2)]
+        except OSError:  # no descriptors to borrow (a detached process): Python's prints only
+            saved = []
+        for fd in (1, 2) if saved else ():
+            os.dup2(sink.fileno(), fd)
+        try:
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                yield captured
+        finally:
+            for fd, old in zip((1, 2), saved, strict=False):
+                os.dup2(old, fd)
+                os.close(old)
+            sink.seek(0)
+            captured.append(buf.getvalue() + sink.read().decode("utf-8", "replace"))
+
+
+def corruption_note(chatter: str) -> str | None:
+    """One line for what the libraries said they skipped, or None when they skipped nothing."""
+    bad = skipped = 0
+    for line in chatter.splitlines():
+        if line.startswith("bad header"):
+            bad += 1
+        elif m := re.match(r"Skipped (\d+) bad bytes", line):
+            skipped += int(m.group(1))
+    if bad or skipped:
+        # the indexer reports each bad byte; the message reader the same bytes again as runs: the larger count
+        return f"skipped {max(bad, skipped)} bytes of corrupt data"
+    if "corruption detected" in chatter or "Failed to find sync" in chatter:
+        return ULOG_CORRUPT_NOTE
+    return None
+
+
+ULOG_CORRUPT_NOTE = "skipped corrupt data (the ULog reader resynchronised past it)"
+
+
+def read_fc_log(path: str | os.PathLike, progress: Progress | None = None) -> FcLog:
+    """Read a ``.BIN``, ``.tlog`` or ``.ulg``; raises UserError with a one-line reason when it cannot.
+
+    The format is told by the file's first bytes (a ``.ulg`` renamed ``.BIN`` is read as a ULog), the suffix
+    only says what was expected."""
+    p = Path(path)
+    expected = fc_log_format(p)
+    if expected is None:
+        raise UserError(f"{p}: not a flight controller log (.BIN, .tlog or .ulg)")
+    check_readable(p)
+    fmt = sniff_format(p)
+    if fmt is None:
+        raise UserError(f"{p}: not a DataFlash/ULog/tlog file (its first bytes are none of these formats)")
+    if fmt != expected:
+        log.info("%s: named as %s, reads as %s", p, expected, fmt)
     reader = {"dataflash": _read_dataflash, "tlog": _read_tlog, "ulog": _read_ulog}[fmt]
-    out = reader(p, progress)
+    with _library_chatter() as chatter:
+        out = reader(p, progress)
+    if (note := corruption_note("".join(chatter))) is not None and note not in out.notes:
+        out.notes.append(note)
+    for note in out.notes:
+        if note.startswith("skipped "):
+            log.warning("%s: %s", p, note)
+    if out.empty:
+        raise UserError(f"{p}: the FC log holds no samples (no servo outputs, attitude, rates, airspeed or the "
+                        "bridge's named values)" + (f"; {out.notes[0]}" if out.notes else ""))
     for n in out.notes:
-        log.info("%s: %s", p, n)
+        if not n.startswith("skipped "):
+            log.info("%s: %s", p, n)
     return out
 
 
@@ -226,7 +368,7 @@ def _text_event(t: float, text: str) -> FcEvent:
 
 # ---------------------------------------------------------------------------------------------- DataFlash
 
-DF_BULK = ("NVAL", "RCOU", "RCO2", "ATT", "RATE", "PIDR", "IMU", "ARSP", "CTUN")  # read as columns
+DF_BULK = ("NVAL", "RCOU", "RCO2", "RCO3", "ATT", "RATE", "PIDR", "IMU", "ARSP", "CTUN")  # read as columns
 DF_EVENTS = ("MODE", "MSG", "PARM", "ERR")  # read message by message (few, with text)
 ERR_SUBSYS = {2: "radio", 5: "radio failsafe", 6: "battery failsafe", 7: "GPS failsafe", 8: "GCS failsafe",
               9: "fence", 12: "EKF/IMU", 16: "EKF failsafe", 17: "baro", 24: "failsafe", 26: "pilot input"}
@@ -266,6 +408,8 @@ def _df_columns(df, name: str) -> dict[str, np.ndarray] | None:
         v = rows[f"f{i}"]
         mult = fmt.msg_mults[i] if i < len(fmt.msg_mults) else None
         out[col] = v.astype(np.float64) * mult if mult else v
+    if "TimeUS" not in out and "TimeMS" in out:  # logs before 2015 stamp in milliseconds
+        out["TimeUS"] = out["TimeMS"].astype(np.float64) * 1e3
     return out
 
 
@@ -278,7 +422,11 @@ def _dataflash_reader(path: str):
     class BootClockReader(DFReader.DFReader_binary):
         def init_clock(self) -> None:
             self._rewind(keep_messages=True)
-            self.init_clock_usec()
+            if any("TimeUS" in f.columns for f in self.formats.values()) or not any(
+                    "TimeMS" in f.columns for f in self.formats.values()):
+                self.init_clock_usec()
+            else:  # a log before 2015, stamped in milliseconds
+                self.init_clock_msec()
 
     return BootClockReader(path, zero_time_base=True)
 
@@ -296,7 +444,7 @@ def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
         if progress is not None:
             progress(k + 1, len(DF_BULK) + 1)
     named = _df_named(cols.get("NVAL"))
-    t_out, a_out = _df_outputs(cols.get("RCOU"), cols.get("RCO2"))
+    t_out, a_out = _df_outputs(cols.get("RCOU"), cols.get("RCO2"), cols.get("RCO3"))
 
     def series(name: str, field: str, scale: float = 1.0, instance0: bool = False) -> Series | None:
         c = cols.get(name)
@@ -312,12 +460,16 @@ def _read_dataflash(p: Path, progress: Progress | None) -> FcLog:
     rate = (series("RATE", "R") or series("IMU", "GyrX", math.degrees(1.0), instance0=True)
             or series("PIDR", "Act"))
     airspeed = series("ARSP", "Airspeed", instance0=True) or series("CTUN", "As")
-    events, params = _df_events(df)
+    events, params, modes, firmware = _df_events(df)
+    mav_type, source = ardupilot_vehicle(firmware, params)
+    mode_names = ardupilot_mode_names(mav_type, firmware)
+    events += [_mode_event(t, mode_names.get(num, str(num)) if isinstance(num, int) else num) for t, num in modes]
     if progress is not None:
         progress(1, 1)
     fl = FcLog(path=str(p), fmt="dataflash", autopilot="ardupilot", named=named, outputs_t=t_out, outputs=a_out,
-               roll=series("ATT", "Roll"), roll_rate=rate, airspeed=airspeed, events=events, params=params,
-               aileron_channels=ardupilot_ailerons(params))
+               roll=series("ATT", "Roll"), roll_rate=rate, airspeed=airspeed,
+               events=sorted(events, key=lambda e: e.t), params=params, aileron_channels=ardupilot_ailerons(params),
+               mav_type=mav_type, vehicle_source=source)
     _note_contents(fl)
     return fl
 
@@ -335,31 +487,43 @@ def _df_named(c: dict[str, np.ndarray] | None) -> dict[str, Series]:
     return out
 
 
-def _df_outputs(rcou, rco2) -> tuple[np.ndarray, np.ndarray]:
-    """RCOU (outputs 1-14) and RCO2 (15-16, same stamps) -> times and a (samples, 16) array, us."""
+def _df_channel(col: str) -> int | None:
+    """The 1-based output of an RCOU/RCO2/RCO3 column: ``C7`` (``Chan7`` in logs before 2015)."""
+    m = re.fullmatch(r"(?:C|Chan)(\d+)", col)
+    return int(m.group(1)) if m and 1 <= int(m.group(1)) <= MAX_CHANNELS else None
+
+
+def _df_outputs(rcou, *more) -> tuple[np.ndarray, np.ndarray]:
+    """RCOU (outputs 1-14), RCO2 (15-18) and RCO3 (19-32), the last two on RCOU's stamps -> times and a
+    (samples, 32) array, us."""
     if rcou is None:
         return np.zeros(0), np.zeros((0, MAX_CHANNELS))
     t = rcou["TimeUS"] * 1e-6
     a = np.full((t.size, MAX_CHANNELS), np.nan)
-    for i in range(1, 15):
-        if f"C{i}" in rcou:
-            a[:, i - 1] = rcou[f"C{i}"]
-    if rco2 is not None:
-        t2 = rco2["TimeUS"] * 1e-6
+    for col, v in rcou.items():
+        if (ch := _df_channel(col)) is not None:
+            a[:, ch - 1] = v
+    for extra in more:
+        if extra is None or not t.size:
+            continue
+        t2 = extra["TimeUS"] * 1e-6
         k = np.minimum(np.searchsorted(t, t2), t.size - 1)
         same = np.abs(t[k] - t2) < 1e-6
-        for j, col in enumerate(("C15", "C16")):
-            if col in rco2:
-                a[k[same], 14 + j] = rco2[col][same]
+        for col, v in extra.items():
+            if (ch := _df_channel(col)) is not None:
+                a[k[same], ch - 1] = v[same]
     order = np.argsort(t, kind="stable")
     return t[order], a[order]
 
 
-def _df_events(df) -> tuple[list[FcEvent], dict[str, float]]:
-    """Modes, texts, parameter changes and errors; the parameters as the flight ended."""
+def _df_events(df) -> tuple[list[FcEvent], dict[str, float], list[tuple[float, int | str]], str]:
+    """Texts, parameter changes and errors; the parameters as the flight ended; the mode changes (time, mode
+    number, or the name a log without numbers gives); the firmware's banner (``ArduPlane V4.6.3 ...``)."""
     events: list[FcEvent] = []
     params: dict[str, float] = {}
     last: dict[str, float] = {}
+    modes: list[tuple[float, int | str]] = []
+    firmware = ""
     types = [t for t in DF_EVENTS if t in df.name_to_id]
     df.rewind()
     while types:
@@ -367,11 +531,17 @@ def _df_events(df) -> tuple[list[FcEvent], dict[str, float]]:
         if m is None:
             break
         mt = m.get_type()
-        t = _f(m, "TimeUS", 0) * 1e-6
+        t = _df_time(m)
         if mt == "MODE":
-            events.append(_mode_event(t, _ardupilot_mode_name(df, m)))
+            num = _f(m, "ModeNum")
+            if num is None:  # logs before 2015: Mode is the number
+                num = _f(m, "Mode")
+            modes.append((t, int(num) if isinstance(num, int | float) else _text(num)))
         elif mt == "MSG":
-            events.append(_text_event(t, _text(_f(m, "Message", ""))))
+            text = _text(_f(m, "Message", ""))
+            if not firmware and FIRMWARE_BANNER.match(text):
+                firmware = text
+            events.append(_text_event(t, text))
         elif mt == "PARM":
             name, value = _text(_f(m, "Name", "")), float(_f(m, "Value", math.nan))
             if name in last and last[name] != value and not name.startswith(HOUSEKEEPING_PARAMS):
@@ -384,7 +554,64 @@ def _df_events(df) -> tuple[list[FcEvent], dict[str, float]]:
             kind = "failsafe" if "failsafe" in sub and code != 0 else "text"
             events.append(FcEvent(t, kind, f"ERR {sub} code {code}"))
     params.update(last)  # PARM is logged again on a change: the values the flight ended with
-    return sorted(events, key=lambda e: e.t), params
+    return events, params, modes, firmware
+
+
+def _df_time(m) -> float:
+    """A DataFlash message's time, s: TimeUS, TimeMS in logs before 2015, else the reader's clock."""
+    us = _f(m, "TimeUS")
+    if us is not None:
+        return us * 1e-6
+    ms = _f(m, "TimeMS")
+    if ms is not None:
+        return ms * 1e-3
+    return float(getattr(m, "_timestamp", 0.0) or 0.0)
+
+
+FIRMWARE_BANNER = re.compile(r"^(Ardu\w+|APM:\w+|AntennaTracker|Blimp)\b")
+# the firmware's banner -> MAV_TYPE (Copter's frame refined by FRAME_CLASS, Plane's by Q_ENABLE)
+_ARDUPILOT_FIRMWARE = {"arduplane": 1, "apm:plane": 1, "arducopter": 2, "apm:copter": 2, "ardurover": 10,
+                       "apm:rover": 10, "ardusub": 12, "apm:sub": 12, "antennatracker": 5, "blimp": 7}
+_COPTER_FRAME_CLASS = {1: 2, 2: 13, 3: 14, 4: 14, 5: 13, 6: 4, 7: 15, 8: 2, 10: 1, 11: 4, 12: 35, 13: 4, 14: 35,
+                       15: 29}
+ARDUPILOT_MOTOR_FUNCTIONS = range(33, 41)  # SERVOn_FUNCTION Motor1..Motor8
+
+
+def ardupilot_vehicle(firmware: str, params: dict[str, float]) -> tuple[int | None, str]:
+    """(MAV_TYPE, what said it) from the firmware's banner in the log's texts, else its parameters."""
+    m = FIRMWARE_BANNER.match(firmware)
+    kind = _ARDUPILOT_FIRMWARE.get(m.group(1).lower()) if m else None
+    if kind == 2 and "FRAME_CLASS" in params:
+        frame = int(params["FRAME_CLASS"])
+        return _COPTER_FRAME_CLASS.get(frame, 2), f"firmware {firmware.split(' (')[0]}, FRAME_CLASS {frame}"
+    if kind == 1 and params.get("Q_ENABLE", 0) >= 1:
+        return 20, f"firmware {firmware.split(' (')[0]}, Q_ENABLE 1"
+    if kind == 10 and int(params.get("FRAME_CLASS", 1)) == 2:
+        return 11, f"firmware {firmware.split(' (')[0]}, FRAME_CLASS 2"
+    if kind is not None:
+        return kind, f"firmware {firmware.split(' (')[0]}"
+    if "FRAME_CLASS" in params and "ATC_RAT_RLL_P" in params:  # Copter's parameters, no banner
+        frame = int(params["FRAME_CLASS"])
+        return _COPTER_FRAME_CLASS.get(frame, 2), f"parameters FRAME_CLASS {frame}, ATC_RAT_RLL_P"
+    functions = {int(v) for k, v in params.items() if re.fullmatch(r"SERVO\d+_FUNCTION", k)}
+    if any(f in ARDUPILOT_MOTOR_FUNCTIONS for f in functions) and ARDUPILOT_AILERON_FUNCTION not in functions:
+        return 43, "SERVOn_FUNCTION: motors and no aileron"
+    if "RLL2SRV_P" in params or "RLL_RATE_FF" in params:
+        return 1, "parameters RLL2SRV_P/RLL_RATE_FF (ArduPlane's)"
+    return None, ""
+
+
+def ardupilot_mode_names(mav_type: int | None, firmware: str) -> dict[int, str]:
+    """Mode number -> name for this vehicle (pymavlink's maps; Plane's for a QuadPlane); empty when the log
+    does not say what the vehicle is: a copter's mode is not decoded with a plane's table."""
+    from pymavlink import mavutil
+
+    m = FIRMWARE_BANNER.match(firmware)
+    if m and _ARDUPILOT_FIRMWARE.get(m.group(1).lower()) == 1:
+        mav_type = 1
+    if mav_type is None:
+        return {}
+    return dict(mavutil.mode_mapping_bynumber(mav_type) or {})
 
 
 def _f(m, name: str, default=None):
@@ -394,20 +621,6 @@ def _f(m, name: str, default=None):
         return getattr(m, name)
     except AttributeError:
         return default
-
-
-def _ardupilot_mode_name(df, m) -> str:
-    mode = getattr(m, "Mode", None)
-    num = getattr(m, "ModeNum", None)
-    try:
-        from pymavlink import mavutil
-
-        names = mavutil.mode_mapping_bynumber(mavutil.mavlink.MAV_TYPE_FIXED_WING) or {}
-        if num is not None and int(num) in names:
-            return names[int(num)]
-    except Exception:  # noqa: BLE001 - a name is a nicety
-        pass
-    return str(num if num is not None else mode)
 
 
 def _note_contents(fl: FcLog) -> None:
@@ -458,6 +671,7 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
     clock = _ClockMap()
     seqs: dict[str, tuple[int, int, int]] = {}  # source -> (last seq, received, lost)
     fc_sys: int | None = None
+    fc_type: int | None = None
     autopilot = "ardupilot"
     us_unwrap = _Unwrap()
     size = max(1, p.stat().st_size)
@@ -487,7 +701,7 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
             gap = (seq - last[0] - 1) % 256
             seqs[key] = (seq, last[1] + 1, last[2] + (gap if gap < 128 else 0))
         if mt == "HEARTBEAT" and src_comp == 1 and m.type != mavutil.mavlink.MAV_TYPE_GCS:
-            fc_sys = src_sys
+            fc_sys, fc_type = src_sys, int(m.type)
             autopilot = "px4" if m.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
             if not modes or modes[-1][1] != m.custom_mode:
                 modes.append((wall, int(m.custom_mode), int(m.type)))
@@ -501,10 +715,11 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
         elif mt == "SERVO_OUTPUT_RAW":
             t = us_unwrap(int(m.time_usec)) * 1e-6
             clock.add(wall, t)
-            vals = [float(getattr(m, f"servo{i}_raw", 0) or math.nan) for i in range(1, MAX_CHANNELS + 1)]
+            # 16 outputs a message; port 1 carries outputs 17-32 (ArduPilot's second bank, PX4's AUX instance)
+            vals = [float(getattr(m, f"servo{i}_raw", 0) or math.nan) for i in range(1, 17)]
             if m.port:
-                vals = [math.nan] * (8 * m.port) + vals[: MAX_CHANNELS - 8 * m.port]
-            outs.append((t, vals))
+                vals = [math.nan] * (16 * m.port) + vals
+            outs.append((t, vals[:MAX_CHANNELS]))
         elif mt == "ACTUATOR_OUTPUT_STATUS":
             t = m.time_usec * 1e-6
             clock.add(wall, t)
@@ -547,7 +762,7 @@ def _read_tlog(p: Path, progress: Progress | None) -> FcLog:
     fl = FcLog(path=str(p), fmt="tlog", autopilot=autopilot, named=named, outputs_t=t_out, outputs=a_out,
                roll=ob.get("roll"), roll_rate=ob.get("rate"), airspeed=ow.get("airspeed"),
                events=sorted(events, key=lambda e: e.t), params=params, aileron_channels=ail, link_loss=loss,
-               notes=notes)
+               notes=notes, mav_type=fc_type, vehicle_source="" if fc_type is None else f"heartbeat MAV_TYPE {fc_type}")
     _note_contents(fl)
     return fl
 
@@ -584,6 +799,19 @@ _PX4_CUT_NAMES = {"WB_cal_pc": "WB_cal_pct"}
 PX4_NAV_STATES = {0: "MANUAL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO_MISSION", 4: "AUTO_LOITER", 5: "AUTO_RTL",
                   10: "ACRO", 12: "DESCEND", 13: "TERMINATION", 14: "OFFBOARD", 15: "STAB", 17: "AUTO_TAKEOFF",
                   18: "AUTO_LAND", 19: "AUTO_FOLLOW_TARGET", 20: "AUTO_PRECLAND", 21: "ORBIT"}
+
+
+# CA_AIRFRAME -> MAV_TYPE: multirotor, fixed wing, standard VTOL, tiltrotor, tailsitter, rovers, helicopters
+_PX4_AIRFRAME = {0: 2, 1: 1, 2: 22, 3: 21, 4: 19, 5: 10, 6: 10, 9: 4, 10: 4, 11: 3, 12: 10}
+
+
+def px4_vehicle(params: dict[str, float]) -> tuple[int | None, str]:
+    """(MAV_TYPE, what said it) from PX4's parameters: MAV_TYPE, else CA_AIRFRAME."""
+    if "MAV_TYPE" in params:
+        return int(params["MAV_TYPE"]), f"parameter MAV_TYPE {int(params['MAV_TYPE'])}"
+    if "CA_AIRFRAME" in params and int(params["CA_AIRFRAME"]) in _PX4_AIRFRAME:
+        return _PX4_AIRFRAME[int(params["CA_AIRFRAME"])], f"parameter CA_AIRFRAME {int(params['CA_AIRFRAME'])}"
+    return None, ""
 
 
 def _read_ulog(p: Path, progress: Progress | None) -> FcLog:
@@ -660,9 +888,12 @@ def _read_ulog(p: Path, progress: Progress | None) -> FcLog:
         if ts > ulog.start_timestamp:
             events.append(FcEvent(ts * 1e-6, "param", f"{name} -> {value:g}"))
     params = {k: float(v) for k, v in ulog.initial_parameters.items()}
+    mav_type, source = px4_vehicle(params)
     fl = FcLog(path=str(p), fmt="ulog", autopilot="px4", named=named, outputs_t=t_out, outputs=a_out, roll=roll,
                roll_rate=rate, airspeed=airspeed, events=sorted(events, key=lambda e: e.t), params=params,
-               aileron_channels=px4_ailerons(params))
+               aileron_channels=px4_ailerons(params), mav_type=mav_type, vehicle_source=source)
+    if ulog.file_corruption:
+        fl.notes.append(ULOG_CORRUPT_NOTE)
     if "debug_key_value" not in data:
         fl.notes.append("no debug_key_value topic: turn the logger's debug topics on (SDLOG_PROFILE) to log "
                         "the bridge's named values")

@@ -19,11 +19,10 @@ import logging
 import math
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from warpbridge.bridge.commands.fclog import FcLog, Series
+from warpbridge.bridge.commands.fclog import FcLog, Series, check_readable
 from warpbridge.bridge.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -67,14 +66,14 @@ class CycleLog:
 
 def read_cycle_log(path: str | os.PathLike) -> CycleLog:
     """Read a bridge cycle log (``bridge.cyclelog`` columns); raises UserError when it is not one."""
-    p = Path(path)
+    p = check_readable(path, "cycle log")
     try:
         with p.open(newline="", encoding="utf-8") as fh:
             reader = csv.reader(fh)
             header = [h.strip() for h in next(reader, [])]
             rows = [r for r in reader if r]
-    except FileNotFoundError:
-        raise UserError(f"{p}: no such file") from None
+    except OSError as e:
+        raise UserError(f"cycle log {p}: cannot be read ({e.strerror or e})") from None
     except (UnicodeDecodeError, csv.Error) as e:
         raise UserError(f"{p}: not a bridge cycle log ({e})") from None
     need = ["t", "mode", "left_setpoint", "right_setpoint"]
@@ -126,6 +125,8 @@ class Alignment:
     check_corr: float = math.nan  # |correlation| at the peak
     overlap_s: float = 0.0
     telemetry_lag_s: float = math.nan  # the FC's logged L_sp behind the cycle log's (bridge -> FC, rate limit)
+    check_channel: int | None = None  # the FC output the check correlated with
+    unchecked: str = ""  # why the check could not be made ("" when it was)
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -137,6 +138,11 @@ class Alignment:
 
     def fc_time(self, t: np.ndarray) -> np.ndarray:
         return np.asarray(t) + self.offset_s + self.drift * (np.asarray(t) - self.t_ref)
+
+
+def join_unchecked(al: Alignment) -> str | None:
+    """``alignment not checked: why`` when the check found nothing to correlate, else None."""
+    return f"alignment not checked: {al.unchecked}" if al.unchecked else None
 
 
 def join_mismatch(al: Alignment) -> str | None:
@@ -254,21 +260,36 @@ def _stamp_offset(cl: CycleLog) -> tuple[float, float, float, float, int] | None
 
 def aileron_series(fc: FcLog, channel: int | None = None) -> tuple[int, Series] | None:
     """The FC's aileron output (channel, series): ``channel`` or the first output the parameters call
-    an aileron, else the logged output that moves most."""
-    chans = [channel] if channel else list(fc.aileron_channels)
+    an aileron, else the logged output that moves most (``guessed_aileron`` says when it is guessed)."""
+    chans = [channel] if channel is not None else list(fc.aileron_channels)
     for ch in chans:
         s = fc.output(ch)
         if s is not None and len(s) > 2:
             return ch, s
-    if channel or fc.outputs_t.size < 3:
+    if channel is not None or fc.outputs_t.size < 3:
         return None
-    spread = np.nanstd(fc.outputs, axis=0)
-    spread[~np.isfinite(spread)] = -1
-    if spread.max() <= 0:
-        return None
-    ch = int(np.argmax(spread)) + 1
-    s = fc.output(ch)
+    ch = _most_moving_output(fc)
+    s = None if ch is None else fc.output(ch)
     return (ch, s) if s is not None else None
+
+
+def guessed_aileron(fc: FcLog, channel: int | None = None) -> int | None:
+    """The output taken for the aileron when neither ``channel`` nor the log's parameters name one (the output
+    that moves most), else None."""
+    if channel is not None or any(fc.output(ch) is not None for ch in fc.aileron_channels):
+        return None
+    ail = aileron_series(fc)
+    return ail[0] if ail is not None else None
+
+
+def _most_moving_output(fc: FcLog) -> int | None:
+    spread = np.full(fc.outputs.shape[1], -1.0)
+    for i in range(fc.outputs.shape[1]):
+        v = fc.outputs[:, i]
+        v = v[np.isfinite(v)]
+        if v.size > 2:
+            spread[i] = float(np.std(v))
+    return int(np.argmax(spread)) + 1 if spread.max() > 0 else None
 
 
 def align(cl: CycleLog, fc: FcLog, channel: int | None = None) -> Alignment:
@@ -295,6 +316,7 @@ def align(cl: CycleLog, fc: FcLog, channel: int | None = None) -> Alignment:
     tf = al.fc_time(cl.t)
     if ail is not None:
         ch, s = ail
+        al.check_channel = ch
         lag, corr = xcorr_lag(s.t, s.v, tf, diff, -CHECK_WINDOW_S, CHECK_WINDOW_S)
         al.check_lag_s, al.check_corr = lag, corr
         lo, hi = max(tf[0], s.t[0]), min(tf[-1], s.t[-1])
@@ -303,9 +325,18 @@ def align(cl: CycleLog, fc: FcLog, channel: int | None = None) -> Alignment:
             al.offset_s -= lag  # refine on the fine grid; what is left is the check
             al.check_lag_s, al.check_corr = xcorr_lag(s.t, s.v, al.fc_time(cl.t), diff, -CHECK_WINDOW_S,
                                                       CHECK_WINDOW_S)
-        notes.append(f"checked on output {ch}: lag {al.check_lag_s * 1e3:.1f} ms, |r| = {al.check_corr:.3f}")
+        if math.isfinite(al.check_lag_s):
+            notes.append(f"checked on output {ch}: lag {al.check_lag_s * 1e3:.1f} ms, |r| = {al.check_corr:.3f}")
+        elif al.overlap_s < CHECK_WINDOW_S:
+            al.unchecked = (f"the FC's output {ch} and the cycle log, as the stamps place it, overlap by "
+                            f"{al.overlap_s:.1f} s: logs of different flights?")
+        else:
+            al.unchecked = f"the FC's output {ch} or the cycle log's setpoint does not move where they overlap"
     else:
-        notes.append("no aileron output in the FC log: the alignment is not checked")
+        al.unchecked = (f"no output {channel} in the FC log" if channel is not None
+                        else "no aileron output in the FC log")
+    if al.unchecked:
+        notes.append(f"alignment not checked: {al.unchecked}")
     nval = fc.named.get("L_sp")
     if nval is not None and len(nval) > 5:
         lag, _ = xcorr_lag(tf, cl.wing["left"]["setpoint"], nval.t, nval.v, -CHECK_WINDOW_S, CHECK_WINDOW_S)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbridge.bridge.commands.fclog import FcEvent, FcLog, Series, read_fc_log
+from warpbridge.bridge.commands.fclog import MAX_CHANNELS, FcEvent, FcLog, Series, check_readable, read_fc_log
 from warpbridge.bridge.commands.logfile import write_text_atomic
 from warpbridge.bridge.commands.logjoin import (
     WINGS,
@@ -33,7 +33,9 @@ from warpbridge.bridge.commands.logjoin import (
     CycleLog,
     aileron_series,
     align,
+    guessed_aileron,
     join_mismatch,
+    join_unchecked,
     read_cycle_log,
 )
 from warpbridge.bridge.errors import UserError
@@ -51,6 +53,9 @@ MIN_BAND_SAMPLES = 30
 LAG_GRID_S = np.arange(0.0, 0.42, 0.02)  # roll rate follows the warp after this much at most
 PHASES = ("loading", "unloading", "after reversal", "holding")
 MIN_FIT_R2 = 0.5  # a band's fit explains less than this: too few or too small manoeuvres, no FF implied
+PWM_RANGE_US = (500.0, 2500.0)  # a plausible servo output trim, us
+MAX_HALF_RANGE_US = 1000.0
+CUT_NOTE_S = 1.0  # a cycle log longer than the FC's log by more than this is said to be cut
 
 
 # ------------------------------------------------------------------------------------------------ data
@@ -87,6 +92,7 @@ class Flight:
     roll_rate: np.ndarray  # deg/s
     events: list[FcEvent]
     latency_ms: np.ndarray  # age of the servo output the bridge used
+    notes: list[str] = field(default_factory=list)  # what the join left out
 
     def differential(self) -> tuple[np.ndarray, bool]:
         """Left minus right warp: measured where both wings have a sensor, else the setpoints."""
@@ -118,7 +124,10 @@ class GainFit:
     r2: float
     output_gain: float  # deg/s per unit of the FC's aileron output (-1..1)
     ff_ardupilot: float  # RLL_RATE_FF that gives this rate from the output at the band's airspeed
-    reliable: bool  # R2 >= MIN_FIT_R2: the band's manoeuvres support the fit
+    reliable: bool  # n >= MIN_BAND_SAMPLES and R2 >= MIN_FIT_R2: the band's manoeuvres support the fit
+    output_r2: float = math.nan  # R2 of the fit of the roll rate to the FC's output
+    output_n: int = 0  # samples of that fit
+    no_ff: str = ""  # why no feed-forward is implied from the output gain ("" when it is)
 
 
 @dataclass
@@ -172,7 +181,7 @@ def _events_from_modes(t: np.ndarray, modes: np.ndarray) -> list[FcEvent]:
 MODE_NAMES = {0.0: "open", 1.0: "pi", 2.0: "ff", 3.0: "ff+pi", -1.0: "failsafe"}
 
 
-def flight_from_cycle_log(cl: CycleLog, fc: FcLog, al: Alignment) -> Flight:
+def flight_from_cycle_log(cl: CycleLog, fc: FcLog, al: Alignment, channel: int | None = None) -> Flight:
     """The cycle log's rows on the FC's clock, over the span the FC logged (ArduPilot starts its log at
     arming by default: the bridge's rows before it have nothing to be joined to)."""
     t = al.fc_time(cl.t)
@@ -181,24 +190,29 @@ def flight_from_cycle_log(cl: CycleLog, fc: FcLog, al: Alignment) -> Flight:
     if keep.sum() < 10:
         raise UserError(f"the cycle log ({cl.t.size} rows) does not overlap the FC's log ({f0:.0f}..{f1:.0f} s on "
                         "the FC's clock): logs of different flights?")
+    notes = []
+    total, kept = float(cl.t[-1] - cl.t[0]), float(t[keep][-1] - t[keep][0])
+    if total - kept > CUT_NOTE_S:
+        notes.append(f"the FC's log covers {kept:.0f} s of the cycle log's {total:.0f} s: the review keeps those")
     t = t[keep]
     wings = {w: WingTrack(cl.wing[w]["setpoint"][keep], cl.wing[w]["warp"][keep], cl.wing[w]["u"][keep])
              for w in WINGS}
-    ail = aileron_series(fc)
+    ail = aileron_series(fc, channel)
     gap = 0.5
     aspd = cl.airspeed[keep]
     airspeed = aspd if np.isfinite(aspd).any() else _at(fc.airspeed, t, 2.0)
     latency = np.full(t.size, np.nan) if cl.fc_t is None else 1e3 * (t - cl.fc_t[keep])
     events = list(fc.events) + _events_from_modes(t, cl.mode[keep])
     return Flight("cycle log", t, cl.rate_hz, wings, airspeed, _at(ail[1] if ail else None, t, gap),
-                  ail[0] if ail else None, _at(fc.roll_rate, t, gap), sorted(events, key=lambda e: e.t), latency)
+                  ail[0] if ail else None, _at(fc.roll_rate, t, gap), sorted(events, key=lambda e: e.t), latency,
+                  notes)
 
 
 def _at(s: Series | None, t: np.ndarray, max_gap: float) -> np.ndarray:
     return np.full(t.size, np.nan) if s is None else s.at(t, max_gap)
 
 
-def flight_from_fc_log(fc: FcLog) -> Flight:
+def flight_from_fc_log(fc: FcLog, channel: int | None = None) -> Flight:
     base = fc.named.get("L_sp") or fc.named.get("L_cmd") or fc.named.get("R_sp")
     if base is None or len(base) < 10:
         raise UserError(f"{fc.path}: the bridge's named values (L_sp, R_sp, ...) are not in this log; give the "
@@ -213,7 +227,7 @@ def flight_from_fc_log(fc: FcLog) -> Flight:
     airspeed = named("WB_aspd")
     if not np.isfinite(airspeed).any():
         airspeed = _at(fc.airspeed, t, 2.0)
-    ail = aileron_series(fc)
+    ail = aileron_series(fc, channel)
     events = list(fc.events)
     mode = fc.named.get("WB_mode")
     if mode is not None and len(mode):
@@ -302,8 +316,8 @@ def _lagged(t: np.ndarray, x: np.ndarray, lag: float) -> np.ndarray:
 
 
 def _fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Least squares y = k x + c: (k, c, R^2)."""
-    if x.size < 3 or np.ptp(x) <= 0:
+    """Least squares y = k x + c: (k, c, R^2); NaNs below ``MIN_BAND_SAMPLES`` samples."""
+    if x.size < MIN_BAND_SAMPLES or np.ptp(x) <= 0:
         return math.nan, math.nan, math.nan
     k, c = np.polyfit(x, y, 1)
     res = y - (k * x + c)
@@ -327,18 +341,48 @@ def roll_authority(f: Flight, bands: list[tuple[float, float]], trim_us: float, 
                 best, best_lag = r, float(lag)
     p = _lagged(f.t, f.roll_rate, best_lag)
     a = (f.aileron - trim_us) / half_range_us
+    mixer = _mixer_sign(delta[air], a[air])
     fits = []
     for a0, a1 in bands:
         sel = air & (f.airspeed >= a0) & (f.airspeed < a1) & np.isfinite(p) & np.isfinite(delta)
         k, c, r2 = _fit(delta[sel], p[sel])
         sel_a = sel & np.isfinite(a)
-        ka, _, _ = _fit(a[sel_a], p[sel_a])
+        ka, _, r2a = _fit(a[sel_a], p[sel_a])
         v = float(np.mean(f.airspeed[sel])) if sel.any() else 0.5 * (a0 + a1)
-        reliable = bool(math.isfinite(r2) and r2 >= MIN_FIT_R2)
-        # ArduPlane's roll-rate FF: output (deg of a 45 deg full throw) = rate * FF * SCALING_SPEED / airspeed
-        ff = 45.0 * v / (abs(ka) * scaling_speed) if reliable and math.isfinite(ka) and ka != 0 else math.nan
-        fits.append(GainFit(f"{a0:g}-{a1:g} m/s", a0, a1, int(sel.sum()), k, c, r2, ka, ff, reliable))
+        reliable = bool(sel.sum() >= MIN_BAND_SAMPLES and math.isfinite(r2) and r2 >= MIN_FIT_R2)
+        no_ff = _why_no_ff(k, reliable, ka, r2a, int(sel_a.sum()), mixer)
+        # ArduPlane's roll-rate FF: output (deg of a 45 deg full throw) = rate * FF * SCALING_SPEED / airspeed;
+        # the output gain's sign agrees with the warp gain's (a reversed servo makes both negative)
+        ff = 45.0 * v / (abs(ka) * scaling_speed) if not no_ff else math.nan
+        fits.append(GainFit(f"{a0:g}-{a1:g} m/s", a0, a1, int(sel.sum()), k, c, r2, ka, ff, reliable, r2a,
+                            int(sel_a.sum()), no_ff))
     return fits, best_lag
+
+
+def _mixer_sign(delta: np.ndarray, a: np.ndarray) -> float:
+    """+1 when the differential warp rises with the FC's output (the bridge's mixer), -1 when it falls, 0 when
+    the flight does not say."""
+    ok = np.isfinite(delta) & np.isfinite(a)
+    if ok.sum() < MIN_BAND_SAMPLES or np.ptp(delta[ok]) <= 0 or np.ptp(a[ok]) <= 0:
+        return 0.0
+    return float(np.sign(np.corrcoef(a[ok], delta[ok])[0, 1]))
+
+
+def _why_no_ff(k: float, reliable: bool, ka: float, r2a: float, n_out: int, mixer: float) -> str:
+    """Why no feed-forward is implied from a band's output gain ``ka`` ("" when one is)."""
+    if not reliable:
+        return "the warp gain's fit is unreliable"
+    if n_out < MIN_BAND_SAMPLES:
+        return "too few samples of the FC's aileron output in this band"
+    if not math.isfinite(ka):
+        return "the FC's aileron output does not move in this band"
+    if not (math.isfinite(r2a) and r2a >= MIN_FIT_R2):
+        return f"the output gain's fit is unreliable (R2 {r2a:.2f} < {MIN_FIT_R2:g})"
+    expected = np.sign(k) * (mixer or 1.0)
+    if ka == 0 or np.sign(ka) != expected:
+        return ("the output gain's sign disagrees with the warp gain's (the roll rate follows the warp one way and "
+                "the FC's output the other): check the aileron channel and its reversal")
+    return ""
 
 
 def _lost(stamps: np.ndarray) -> tuple[int, int]:
@@ -366,20 +410,47 @@ def link_stats(f: Flight, fc: FcLog, cl: CycleLog | None) -> LinkStats:
                      dict(fc.link_loss))
 
 
+def check_vehicle_and_channel(fc: FcLog, channel: int | None) -> list[str]:
+    """The warnings of the vehicle's type and the aileron's output; a UserError for a vehicle without a wing
+    (unless ``channel`` names the output to review), or a ``channel`` this log cannot carry or did not log."""
+    warnings = []
+    if channel is not None:
+        if not 1 <= channel <= fc.max_channel:
+            raise UserError(f"--channel {channel}: {fc.autopilot} logs carry outputs 1 to {fc.max_channel}")
+        if fc.outputs_t.size and fc.output(channel) is None:
+            logged = [ch for ch in range(1, fc.outputs.shape[1] + 1) if fc.output(ch) is not None]
+            raise UserError(f"--channel {channel}: output {channel} is not in this log (outputs logged: "
+                            f"{', '.join(map(str, logged)) or 'none'})")
+        if (s := fc.output(channel)) is not None and np.ptp(s.v) == 0:
+            warnings.append(f"output {channel} (--channel) holds {s.v[0]:.0f} us over the whole log: is it the "
+                            "aileron?")
+    if fc.wingless:
+        said = f"the log's vehicle is a {fc.vehicle} ({fc.vehicle_source}), without a wing to warp"
+        if channel is None:
+            raise UserError(f"{fc.path}: {said}; give --channel N to review output N as the aileron anyway")
+        warnings.append(f"{said}: output {channel} reviewed as the aileron (--channel)")
+    if (guess := guessed_aileron(fc, channel)) is not None:
+        warnings.append(f"no aileron function in the log's parameters: guessed output {guess} (use --channel)")
+    return warnings
+
+
 def review(fc: FcLog, cl: CycleLog | None, *, channel: int | None = None, bands: list[float] | None = None,
            trim_us: float = 1500.0, half_range_us: float = 400.0) -> tuple[Review, Flight, Alignment | None]:
     """Analyse a flight: join, tracking, roll authority, link; no files written."""
-    warnings: list[str] = []
+    warnings = check_vehicle_and_channel(fc, channel)
     notes = list(fc.notes)
     al = None
     if cl is not None:
         al = align(cl, fc, channel)
-        flight = flight_from_cycle_log(cl, fc, al)
+        flight = flight_from_cycle_log(cl, fc, al, channel)
         notes += al.notes
+        warnings += flight.notes
+        if (unchecked := join_unchecked(al)) is not None:
+            warnings.append(unchecked)
         if (mismatch := join_mismatch(al)) is not None:
             warnings.append(mismatch)
     else:
-        flight = flight_from_fc_log(fc)
+        flight = flight_from_fc_log(fc, channel)
     if flight.rate_hz < DIAGNOSE_MIN_HZ:
         warnings.append(
             f"the bridge's values come at {flight.rate_hz:.1f} Hz ({flight.source}): enough to locate where "
@@ -440,11 +511,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("cyclelog", nargs="?", help="the bridge's cycle log of the same flight (CSV)")
     p.add_argument("-o", "--output", help="REPORT.html to write (default: LOG's name with -review.html); the "
                                           "JSON summary goes beside it (.json)")
-    p.add_argument("--channel", type=int, help="the FC output carrying the aileron (default: from its parameters)")
+    p.add_argument("--channel", type=int,
+                   help="the FC output carrying the aileron, 1 to 32 (PX4: 16) (default: from its parameters); "
+                        "needed to review a log whose vehicle has no wing")
     p.add_argument("--bands", help="airspeed band edges, m/s, e.g. 10,14,18,22 (default: 3 m/s bands)")
-    p.add_argument("--trim", type=float, default=1500.0, help="aileron output trim, us (default 1500)")
+    p.add_argument("--trim", type=float, default=1500.0, help="aileron output trim, us, 500 to 2500 (default 1500)")
     p.add_argument("--half-range", type=float, default=400.0,
-                   help="aileron output from trim to full deflection, us (default 400)")
+                   help="aileron output from trim to full deflection, us, above 0 to 1000 (default 400)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -464,21 +537,97 @@ def _progress(quiet: bool):
     return update
 
 
+def _num(x: float, digits: int) -> str:
+    """``x`` to ``digits`` decimals, a zero never signed ("-0.00" is "0.00")."""
+    return f"{round(x, digits) + 0.0:.{digits}f}"
+
+
+def parse_bands(text: str | None) -> list[float] | None:
+    """``--bands``: at least two distinct finite edges, m/s, not negative (sorted)."""
+    if not text:
+        return None
+    try:
+        edges = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise UserError(f"--bands: not a list of numbers ({text!r})") from None
+    if len(edges) < 2:
+        raise UserError("--bands: give at least two edges")
+    if not all(math.isfinite(e) for e in edges):
+        raise UserError(f"--bands: edges must be finite numbers ({text!r})")
+    if any(e < 0 for e in edges):
+        raise UserError(f"--bands: airspeeds cannot be negative ({text!r})")
+    edges = sorted(edges)
+    if any(b <= a for a, b in zip(edges[:-1], edges[1:], strict=False)):
+        raise UserError(f"--bands: an edge is given twice ({text!r})")
+    return edges
+
+
+def check_options(args: argparse.Namespace) -> Path:
+    """Refuse options that cannot be right before any log is read; the report's path."""
+    if args.channel is not None and not 1 <= args.channel <= MAX_CHANNELS:
+        raise UserError(f"--channel {args.channel}: outputs are numbered 1 to {MAX_CHANNELS} (ArduPilot's "
+                        "SERVO1..32; PX4 logs 1 to 16)")
+    if not math.isfinite(args.trim) or not PWM_RANGE_US[0] <= args.trim <= PWM_RANGE_US[1]:
+        raise UserError(f"--trim {args.trim:g}: give the aileron output's trim in us, {PWM_RANGE_US[0]:.0f} to "
+                        f"{PWM_RANGE_US[1]:.0f}")
+    if not math.isfinite(args.half_range) or not 0 < args.half_range <= MAX_HALF_RANGE_US:
+        raise UserError(f"--half-range {args.half_range:g}: give the output's travel from trim to full "
+                        f"deflection in us, above 0 and at most {MAX_HALF_RANGE_US:.0f}")
+    check_readable(args.log, "FC log")
+    if args.cyclelog:
+        check_readable(args.cyclelog, "cycle log")
+    out = Path(args.output) if args.output else Path(args.log).with_name(Path(args.log).stem + "-review.html")
+    if args.output and (out.is_dir() or args.output.endswith(("/", "\\"))):
+        raise UserError(f"-o {args.output}: is a directory; give the report's file name (REPORT.html)")
+    if out.suffix.lower() == ".json":
+        raise UserError(f"-o {args.output}: give the HTML report's name (REPORT.html); the JSON summary is written "
+                        "beside it")
+    if not out.parent.is_dir():
+        raise UserError(f"{out}: directory {out.parent} does not exist")
+    inputs = {Path(args.log).resolve()} | ({Path(args.cyclelog).resolve()} if args.cyclelog else set())
+    if {out.resolve(), out.with_suffix(".json").resolve()} & inputs:
+        raise UserError(f"-o {out}: the report or its JSON summary would overwrite an input log")
+    return out
+
+
+def _join_line(al: Alignment) -> str:
+    """The printed line of the join."""
+    line = f"join: {al.method}, offset {al.offset_s:.3f} s"
+    if not math.isfinite(al.check_lag_s):
+        return line + ", not checked"
+    line += f", check lag {_num(al.check_lag_s * 1e3, 1)} ms (|r| {al.check_corr:.3f})"
+    if math.isfinite(al.residual_s):
+        return line + f", residual {_num(al.residual_s * 1e3, 1)} ms"
+    return line + ", residual none (placed by cross-correlation)"
+
+
+def _roll_line(g: GainFit, px4: bool) -> str:
+    """The printed line of one band's roll authority."""
+    below = (f" (the fit leaves out samples below {MIN_AIRBORNE_MS:g} m/s, not airborne)"
+             if g.lo_ms < MIN_AIRBORNE_MS else "")
+    if g.n == 0:
+        return f"roll authority {g.band}: no samples in this band{below}"
+    fit = f"{_num(g.gain, 2)} deg/s per deg (R2 {_num(g.r2, 2)}, n {g.n})" if math.isfinite(g.gain) else f"n {g.n}"
+    if g.n < MIN_BAND_SAMPLES:
+        return f"roll authority {g.band}: {fit}, too few samples to fit (fewer than {MIN_BAND_SAMPLES}){below}"
+    if not g.reliable:
+        return f"roll authority {g.band}: {fit}, too little manoeuvring to fit{below}"
+    out = (f"{_num(g.output_gain, 0)} deg/s per full output (R2 {_num(g.output_r2, 2)})"
+           if math.isfinite(g.output_gain) else "")
+    if g.no_ff:
+        said = f"{out}; " if out else ""
+        return f"roll authority {g.band}: {fit}, {said}no {'FF' if px4 else 'RLL_RATE_FF'}: {g.no_ff}{below}"
+    if px4:  # FW_RR_FF: docs/review.md
+        return f"roll authority {g.band}: {fit}, {out}{below}"
+    return f"roll authority {g.band}: {fit}, RLL_RATE_FF ~ {g.ff_ardupilot:.3f} from {out}{below}"
+
+
 def main(args: argparse.Namespace) -> int:
     from warpbridge.bridge.commands.review_plots import write_html
 
     t0 = time.perf_counter()
-    out = Path(args.output) if args.output else Path(args.log).with_name(Path(args.log).stem + "-review.html")
-    if not out.parent.is_dir():
-        raise UserError(f"{out}: directory {out.parent} does not exist")
-    bands = None
-    if args.bands:
-        try:
-            bands = [float(x) for x in args.bands.split(",")]
-        except ValueError:
-            raise UserError(f"--bands: not a list of numbers ({args.bands!r})") from None
-        if len(bands) < 2:
-            raise UserError("--bands: give at least two edges")
+    out = check_options(args)
+    bands = parse_bands(args.bands)
     log.info("reading %s", args.log)
     fc = read_fc_log(args.log, progress=_progress(args.no_progress))
     f0, f1 = fc.span
@@ -495,23 +644,13 @@ def main(args: argparse.Namespace) -> int:
           f"({fc.fmt}{' + cycle log' if cl else ''}); read and joined in {t_read:.1f} s, "
           f"report in {time.perf_counter() - t0:.1f} s")
     if al is not None:
-        print(f"join: {al.method}, offset {al.offset_s:.3f} s, check lag {al.check_lag_s * 1e3:.1f} ms "
-              f"(|r| {al.check_corr:.3f}), residual {al.residual_s * 1e3:.1f} ms")
+        print(_join_line(al))
     for w in WINGS:
         s = rv.tracking[w]["all"][0]
         if s.n:
             print(f"{w} wing: tracking RMS {s.rms:.3f} deg, 95% {s.p95:.3f} deg over {s.n} samples")
     for g in rv.roll_authority:
-        if g.n == 0:
-            print(f"roll authority {g.band}: no samples in this band")
-            continue
-        if not g.reliable:
-            ff = "too little manoeuvring to fit"
-        elif fc.autopilot == "px4":  # FW_RR_FF: docs/review.md
-            ff = f"{g.output_gain:.0f} deg/s per full output"
-        else:
-            ff = f"RLL_RATE_FF ~ {g.ff_ardupilot:.3f}"
-        print(f"roll authority {g.band}: {g.gain:.2f} deg/s per deg (R2 {g.r2:.2f}, n {g.n}), {ff}")
+        print(_roll_line(g, fc.autopilot == "px4"))
     for w in rv.warnings:
         print(f"note: {w}")
     print(f"wrote {out} and {js}")

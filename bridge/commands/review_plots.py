@@ -16,7 +16,7 @@ import numpy as np
 
 from warpbridge.bridge.commands.fclog import FcLog
 from warpbridge.bridge.commands.logfile import write_text_atomic
-from warpbridge.bridge.commands.logjoin import WINGS, Alignment, CycleLog, aileron_series
+from warpbridge.bridge.commands.logjoin import WINGS, Alignment, CycleLog
 from warpbridge.bridge.commands.review import MIN_FIT_R2, PHASES, Flight, Review
 
 MAX_POINTS = 20000  # per line: a long flight is thinned for drawing (never for the numbers)
@@ -184,14 +184,15 @@ def fig_roll_authority(rv: Review, f: Flight):
     ax2 = ax.twinx()
     if rv.autopilot == "px4":  # no single feed-forward parameter to imply (docs/review.md, FW_RR_FF)
         ax2.plot(v, [g.output_gain for g in good], "s--", color="tab:blue", label="deg/s per full output")
-        ax2.set_ylim(0, 1.3 * max([g.output_gain for g in good] + [0.0]) or 1.0)
+        ax2.set_ylim(0, 1.3 * max([g.output_gain for g in good if math.isfinite(g.output_gain)] + [0.0]) or 1.0)
         ax2.set_ylabel("roll rate per full output, deg/s", color="tab:blue")
         ax2.legend(loc="lower right", fontsize=8)
         ax.set_title(f"gain per band (bands with R2 >= {MIN_FIT_R2})")
         fig.tight_layout()
         return fig
     ax2.plot(v, [g.ff_ardupilot for g in good], "s--", color="tab:blue", label="RLL_RATE_FF implied")
-    top = max([g.ff_ardupilot for g in good] + [rv.fc_roll_ff if math.isfinite(rv.fc_roll_ff) else 0.0, 0.0])
+    top = max([g.ff_ardupilot for g in good if math.isfinite(g.ff_ardupilot)]
+              + [rv.fc_roll_ff if math.isfinite(rv.fc_roll_ff) else 0.0, 0.0])
     if math.isfinite(rv.fc_roll_ff):
         ax2.axhline(rv.fc_roll_ff, color="tab:blue", lw=0.8, ls=":", label=f"in the log: {rv.fc_roll_ff:.3f}")
     ax2.set_ylim(0, 1.3 * top if top > 0 else 1.0)
@@ -239,7 +240,8 @@ def fig_join(al: Alignment, f: Flight, fc: FcLog, cl: CycleLog):
     """The join: the FC's aileron output and the bridge's differential setpoint on the FC's clock."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 3.5))
-    ail = aileron_series(fc)
+    ch = f.aileron_channel
+    s_ail = fc.output(ch) if ch is not None else None
     diff = f.wings["left"].setpoint - f.wings["right"].setpoint
     # the busiest 10 s of the flight: where the aileron moves most
     mid = f.t[np.nanargmax(np.abs(np.gradient(np.nan_to_num(diff))))] if f.t.size else 0.0
@@ -247,16 +249,19 @@ def fig_join(al: Alignment, f: Flight, fc: FcLog, cl: CycleLog):
     ax.plot(f.t[sel], diff[sel], color="tab:blue", lw=1.0, label="bridge: left - right setpoint (cycle log)")
     ax.set_ylabel("differential setpoint, deg", color="tab:blue")
     ax.set_xlabel("time, s (FC clock)")
-    if ail is not None:
-        s = ail[1]
-        k = (s.t > mid - 5) & (s.t < mid + 5)
+    if s_ail is not None:
+        k = (s_ail.t > mid - 5) & (s_ail.t < mid + 5)
         ax2 = ax.twinx()
-        ax2.plot(s.t[k], s.v[k], ".--", color="tab:orange", ms=3, lw=0.8, label=f"FC output {ail[0]} (FC log)")
+        ax2.plot(s_ail.t[k], s_ail.v[k], ".--", color="tab:orange", ms=3, lw=0.8, label=f"FC output {ch} (FC log)")
         ax2.set_ylabel("FC output, us")
         ax2.legend(loc="upper right", fontsize=8)
     ax.legend(loc="upper left", fontsize=8)
-    ax.set_title(f"join ({al.method}): check lag {al.check_lag_s * 1e3:.1f} ms, expected "
-                 f"{al.expected_lag_s * 1e3:.1f} ms, residual {al.residual_s * 1e3:.1f} ms", fontsize=10)
+    if al.unchecked:
+        ax.set_title(f"join ({al.method}): alignment not checked: {al.unchecked}", fontsize=10)
+    else:
+        ax.set_title(f"join ({al.method}): check lag {_num(al.check_lag_s * 1e3, '{:.1f}')} ms, expected "
+                     f"{_num(al.expected_lag_s * 1e3, '{:.1f}')} ms, residual {_num(al.residual_s * 1e3, '{:.1f}')} ms",
+                     fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -271,7 +276,11 @@ def png(fig) -> str:
 
 
 def _num(x: float, fmt: str = "{:.3f}") -> str:
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
+    """``x`` formatted, "-" for None and NaN; a zero is never signed."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    text = fmt.format(x)
+    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
 
 
 def _table(head: list[str], rows: list[list[str]]) -> str:
@@ -322,9 +331,11 @@ def write_html(out: Path, rv: Review, f: Flight, fc: FcLog, cl: CycleLog | None,
     parts.append("<h2>Roll authority</h2>")
     px4 = rv.autopilot == "px4"
     parts.append(_table(["airspeed band", "samples", "gain, deg/s per deg", "bias, deg/s", "R2",
-                         "deg/s per full output", *([] if px4 else ["RLL_RATE_FF implied"])],
+                         "deg/s per full output", "output R2", *([] if px4 else ["RLL_RATE_FF implied"]),
+                         "no FF because"],
                         [[g.band, g.n, _num(g.gain), _num(g.bias, "{:.2f}"), _num(g.r2, "{:.2f}"),
-                          _num(g.output_gain, "{:.1f}"), *([] if px4 else [_num(g.ff_ardupilot)])]
+                          _num(g.output_gain, "{:.1f}"), _num(g.output_r2, "{:.2f}"),
+                          *([] if px4 else [_num(g.ff_ardupilot)]), g.no_ff or "-"]
                          for g in rv.roll_authority]))
     lead = (f"<p>Roll rate {rv.roll_lag_s * 1e3:.0f} ms after the "
             f"{'measured' if rv.roll_uses_measured_warp else 'commanded'} differential warp (the lag where they "
