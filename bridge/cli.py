@@ -140,6 +140,9 @@ def _subparser(parser: argparse.ArgumentParser, name: str | None) -> argparse.Ar
     return None
 
 
+NOISY_LIBRARIES = ("matplotlib", "numba", "PIL")
+
+
 def log_level(verbose: int, quiet: int) -> int:
     """INFO by default (what the program connected to, asked for, mode changes, faults); -v debug, -q warnings."""
     return min(logging.ERROR, max(logging.DEBUG, logging.INFO - 10 * verbose + 10 * quiet))
@@ -164,7 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     # reads, as ``args.quiet``) lowers it as well
     verbose = args.verbose_top + getattr(args, "verbose_after", 0)
     quiet = args.quiet_top + getattr(args, "quiet_after", 0) + int(bool(getattr(args, "quiet", False)))
-    logging.basicConfig(level=log_level(verbose, quiet), format="%(levelname)s %(name)s: %(message)s")
+    level = log_level(verbose, quiet)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    for name in NOISY_LIBRARIES:  # their debug output is about themselves (fonts, compiler passes), not the run
+        logging.getLogger(name).setLevel(max(logging.INFO, level))
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

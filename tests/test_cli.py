@@ -187,6 +187,18 @@ def test_the_common_options_count_before_and_after_the_command(recording_command
     assert bool(module.seen["quiet"]) is own_quiet
 
 
+def test_verbose_leaves_the_plotting_and_compiler_libraries_at_info(recording_command, monkeypatch):
+    """-v is the run's debug output, not matplotlib's font search or numba's passes (hundreds of lines)."""
+    import logging
+
+    for name in cli.NOISY_LIBRARIES:
+        monkeypatch.setattr(logging.getLogger(name), "level", logging.NOTSET)
+    assert cli.main(["-v", "diagnose"]) == 0
+    assert all(logging.getLogger(name).level == logging.INFO for name in ("matplotlib", "numba"))
+    assert cli.main(["-qq", "diagnose"]) == 0
+    assert logging.getLogger("matplotlib").level == logging.ERROR
+
+
 @pytest.mark.parametrize(("argv", "usage", "unknown"), [
     (["diagnose", "--max-dealy", "0.1"], "usage: warpbridge diagnose", "--max-dealy 0.1"),  # the command's usage
     (["--bogus", "diagnose"], "usage: warpbridge [", "--bogus"),  # before the command: the top level's

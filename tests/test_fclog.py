@@ -333,3 +333,28 @@ def test_modes_are_named_by_the_vehicles_table():
     assert ardupilot_mode_names(1, "ArduPlane V4.6.3")[0] == "MANUAL"
     assert ardupilot_mode_names(20, "ArduPlane V4.6.3")[19] == "QLOITER"
     assert ardupilot_mode_names(None, "") == {}  # a vehicle the log does not name: numbers, not a plane's names
+
+
+def test_reading_keeps_the_readers_byte_by_byte_chatter_out_and_lets_the_rest_through(capfd):
+    """pymavlink's indexer writes a line per bad byte to the process's stderr (from C): counted, not shown;
+    anything else written while a log is read (this program's log lines) still reaches stderr."""
+    import logging
+    import os
+
+    from warpbridge.bridge.commands import fclog
+
+    handler = logging.StreamHandler()  # as logging.basicConfig sets it up: on the stderr of that moment
+    logger = logging.getLogger("warpbridge.test_chatter")
+    logger.addHandler(handler)
+    try:
+        with fclog._library_chatter() as said:
+            os.write(2, b"bad header 0x00 0x00 at 5\n" * 4)
+            print("Skipped 3 bad bytes")
+            logger.warning("a line of ours")
+            os.write(2, b"a library's other words\n")
+    finally:
+        logger.removeHandler(handler)
+    out, err = capfd.readouterr()
+    assert "bad header" not in out + err and "Skipped" not in out + err
+    assert "a line of ours" in err and "a library's other words" in err
+    assert fclog.corruption_note(said[0]) == "skipped 4 bytes of corrupt data"

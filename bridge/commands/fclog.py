@@ -205,7 +205,9 @@ def check_readable(path: str | os.PathLike, what: str = "") -> Path:
 def _library_chatter() -> Iterator[list[str]]:
     """pymavlink and pyulog print what they skip (one line per byte of a bad block; pymavlink's indexer from C,
     to the process's stderr): caught, Python's and the C library's alike, to be counted. The list yielded
-    holds the text once the block is left."""
+    holds the text once the block is left; whatever else was written meanwhile (this program's log lines, a
+    library's other words) goes on to stderr then. A progress bar drawn on a copy of stderr's descriptor taken
+    before (``review``'s) stays live."""
     captured: list[str] = []
     buf = io.StringIO()
     with tempfile.TemporaryFile() as sink:
@@ -221,11 +223,24 @@ def _library_chatter() -> Iterator[list[str]]:
             with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
                 yield captured
         finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
             for fd, old in zip((1, 2), saved, strict=False):
                 os.dup2(old, fd)
                 os.close(old)
             sink.seek(0)
-            captured.append(buf.getvalue() + sink.read().decode("utf-8", "replace"))
+            text = buf.getvalue() + sink.read().decode("utf-8", "replace")
+            captured.append(text)
+            rest = [line for line in text.splitlines(keepends=True) if not _is_chatter(line)]
+            if rest:
+                sys.stderr.write("".join(rest))
+                sys.stderr.flush()
+
+
+def _is_chatter(line: str) -> bool:
+    """A reader's line about skipped bytes (counted by ``corruption_note``, not shown)."""
+    return (line.startswith(("bad header", "Skipped ")) or "corruption detected" in line
+            or "Failed to find sync" in line)
 
 
 def corruption_note(chatter: str) -> str | None:

@@ -18,6 +18,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -526,13 +527,16 @@ def _progress(quiet: bool):
         return None
     from tqdm import tqdm
 
-    bar = tqdm(total=100, unit="%", desc="reading", leave=False)
+    # drawn on a copy of stderr's descriptor: the log reader silences the descriptor itself while it reads
+    stream = os.fdopen(os.dup(sys.stderr.fileno()), "w")
+    bar = tqdm(total=100, unit="%", desc="reading", leave=False, file=stream)
 
     def update(done: int, total: int) -> None:
         bar.n = int(100 * done / max(total, 1))
         bar.refresh()
         if done >= total:
             bar.close()
+            stream.close()
 
     return update
 
