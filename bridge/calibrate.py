@@ -459,8 +459,8 @@ class FieldTuning:
             return
         self._internal = True
         try:
-            if self.params_store.get(name) != value:
-                self.params_store.set(name, value)
+            before = self.params_store.get(name)
+            if self.params_store.set(name, value) != before:  # held at float32's precision: may not change
                 self.announce(name)
         except Exception:  # noqa: BLE001
             log.exception("could not update %s", name)

@@ -83,7 +83,10 @@ class ParamSpec:
             raise ParamError(f"{self.name}: {_fmt(v)} below min {_fmt(self.min)}")
         if v > self.max + _F32_TOL * max(1.0, abs(self.max)):
             raise ParamError(f"{self.name}: {_fmt(v)} above max {_fmt(self.max)}")
-        v = _float32_shortest(min(max(v, self.min), self.max))
+        # at float32's precision, then onto the range; the default and the bounds as defined when MAVLink
+        # carries them alike (a model's parameter is no short decimal)
+        v = min(max(_float32_shortest(v), self.min), self.max)
+        v = next((float(x) for x in (self.default, self.min, self.max) if _float32(x) == _float32(v)), v)
         if self.integer:
             r = round(v)
             if abs(v - r) > _F32_TOL * max(1.0, abs(v)):
@@ -172,8 +175,8 @@ class ParamStore:
             raise ParamError(f"unknown parameter {name!r}")
         v = spec.validate(value)
         old = self._values[name]
-        if v == old:
-            return v
+        if _float32(v) == _float32(old):  # what MAVLink carries of the value held: no change
+            return old
         if spec.on_set is not None:
             try:
                 spec.on_set(name, v)

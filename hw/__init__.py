@@ -98,7 +98,7 @@ def sensor_on_servo_port(sensor_spec: str, servo_spec: str) -> bool:
         servo_url = _maestro(srest, 0)[0] if skind == "maestro" else None
     except ValueError:  # the servo's spec: reported as the servo's
         return False
-    return servo_url is not None and (not rest.strip() or _maestro(rest, 0)[0] == servo_url)
+    return servo_url is not None and (not rest.strip() or _same_device(_maestro(rest, 0)[0], servo_url))
 
 
 def _same_device(a: str, b: str | None) -> bool:

@@ -616,9 +616,10 @@ def run_realtime(args: argparse.Namespace, out: Path, spec: WingSpec, gcs: list[
     t_from = max(HOLD_S, float(rt.t[np.argmax(fl)])) + SETTLE_S
     t_to = min(HOLD_S + args.duration, float(rt.t[-1]))
     if t_to - t_from < 1.0:
-        if interrupted is not None:
-            raise UserError(f"stopped after {interrupted:.1f} s of flight, too early to compare (the scenario "
-                            f"starts after a {HOLD_S:g} s neutral hold); logs: {out}")
+        if interrupted is not None:  # the user's stop, not a failure: the exit code says interrupted
+            print(f"sitl: stopped after {interrupted:.1f} s of flight, too early to compare (the scenario starts "
+                  f"after a {HOLD_S:g} s neutral hold); logs: {out}", file=sys.stderr)
+            return 130
         raise UserError(f"the bridge followed the FC for only {max(0.0, t_to - t_from + SETTLE_S):.1f} s")
     print("sitl: flying the same stretch in lock-step (the bridge's cycle on a simulated clock) ...", flush=True)
     runs = {}

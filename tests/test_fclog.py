@@ -171,10 +171,16 @@ def test_px4_debug_key_value_are_the_bridges_named_values(tmp_path):
 # ------------------------------------------------------------------------------------------------ tlog clock
 
 
-def _tlog(path: Path, boot0: float, wall0: float, drop_bridge: set[int], mav_type: int = 1) -> None:
-    """A tlog as a ground station writes it: 8-byte big-endian microseconds of reception, then the frame."""
+def _tlog(path: Path, boot0: float, wall0: float, drop_bridge: set[int], mav_type: int = 1,
+          signed: bool = False) -> None:
+    """A tlog as a ground station writes it: 8-byte big-endian microseconds of reception, then the frame
+    (``signed``: MAVLink 2 frames with their 13-byte signature)."""
     fc = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     br = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
+    for conn in (fc, br) if signed else ():
+        conn.signing.secret_key = bytes(range(32))
+        conn.signing.sign_outgoing = True
+        conn.signing.timestamp = 1
     with path.open("wb") as f:
         def put(conn, msg, wall):
             buf = msg.pack(conn)
@@ -319,7 +325,15 @@ def test_the_vehicle_type_each_log_carries(dataflash, tmp_path):
     assert ardupilot_vehicle("", {"SERVO1_FUNCTION": 33.0, "SERVO2_FUNCTION": 34.0})[0] == 43
     assert ardupilot_vehicle("ArduPlane V4.6.3", {"Q_ENABLE": 1.0})[0] == 20
     assert ardupilot_vehicle("", {})[0] is None
-    assert px4_vehicle({"CA_AIRFRAME": 0.0})[0] == 2 and px4_vehicle({"MAV_TYPE": 1.0, "CA_AIRFRAME": 0.0})[0] == 1
+    # no banner: a QuadPlane or tailsitter (motors and a wing), motors with flaperons: not refused as wingless
+    elevons = {"SERVO1_FUNCTION": 77.0, "SERVO2_FUNCTION": 78.0, "SERVO5_FUNCTION": 33.0, "SERVO6_FUNCTION": 34.0}
+    assert ardupilot_vehicle("", {**elevons, "Q_ENABLE": 1.0, "RLL2SRV_P": 1.0})[0] == 20
+    assert ardupilot_vehicle("", elevons)[0] is None
+    assert ardupilot_vehicle("", {"SERVO1_FUNCTION": 24.0, "SERVO2_FUNCTION": 25.0, "SERVO3_FUNCTION": 33.0})[0] is None
+    assert ardupilot_vehicle("ArduPilot Ready", {"RLL2SRV_P": 1.0})[0] == 1  # not a banner: Plane's parameters
+    # PX4's MAV_TYPE only: CA_AIRFRAME's numbers changed between releases (9 is "custom", 0 a default)
+    assert px4_vehicle({"MAV_TYPE": 1.0, "CA_AIRFRAME": 0.0})[0] == 1
+    assert px4_vehicle({"CA_AIRFRAME": 9.0}) == (None, "") and px4_vehicle({"CA_AIRFRAME": 0.0}) == (None, "")
     p = tmp_path / "quad.tlog"
     _tlog(p, boot0=10.0, wall0=1.7e9, drop_bridge=set(), mav_type=2)
     fc = read_fc_log(p)
@@ -357,4 +371,58 @@ def test_reading_keeps_the_readers_byte_by_byte_chatter_out_and_lets_the_rest_th
     out, err = capfd.readouterr()
     assert "bad header" not in out + err and "Skipped" not in out + err
     assert "a line of ours" in err and "a library's other words" in err
-    assert fclog.corruption_note(said[0]) == "skipped 4 bytes of corrupt data"
+    assert fclog.corruption_note(said) == "skipped 4 bytes of corrupt data"
+
+
+def test_a_signed_tlog_is_read_as_a_tlog(tmp_path):
+    from warpbridge.bridge.commands.fclog import sniff_format
+
+    p = tmp_path / "signed.tlog"
+    _tlog(p, boot0=10.0, wall0=1.7e9, drop_bridge=set(), signed=True)
+    assert p.read_bytes()[8] == 0xFD and p.read_bytes()[10] & 1  # MAVLink 2, signed
+    assert sniff_format(p) == "tlog"
+    assert read_fc_log(p).outputs_t.size == 400
+
+
+def test_a_px4_tlog_carries_outputs_up_to_32():
+    def empty(fmt: str) -> FcLog:
+        return FcLog(f"x.{fmt}", fmt, "px4", {}, np.zeros(0), np.zeros((0, 32)), None, None, None)
+
+    assert empty("tlog").max_channel == 32  # SERVO_OUTPUT_RAW port 1 (the AUX bank): outputs 17-32
+    assert empty("ulog").max_channel == 16
+
+
+def test_chatter_is_counted_as_it_comes_and_other_lines_passed_on_up_to_a_cap(tmp_path):
+    """A corrupt tail of many megabytes prints a line per bad byte: counted line by line, never held whole;
+    other lines pass on, the first ``MAX_PASSED_LINES`` of them, then a count."""
+    import io
+
+    from warpbridge.bridge.commands.fclog import MAX_PASSED_LINES, Chatter
+
+    dump = tmp_path / "dump"
+    with dump.open("wb") as f:
+        f.write(b"bad header 0x00 0x00 at 1\n" * 100_000)
+        f.write(b"other\n" * (MAX_PASSED_LINES + 5))
+        f.write(b"Skipped 7 bad bytes in log at offset 3, type=None\nlast line without newline")
+    out = io.StringIO()
+    chatter = Chatter(out)
+    with dump.open("rb") as fh:
+        chatter.feed(fh)
+    chatter.close_lines()
+    assert (chatter.bad_headers, chatter.skipped) == (100_000, 7)
+    assert chatter.note() == "skipped 100000 bytes of corrupt data"
+    lines = out.getvalue().splitlines()
+    assert lines[:MAX_PASSED_LINES] == ["other"] * MAX_PASSED_LINES
+    assert lines[MAX_PASSED_LINES:] == ["... 6 more lines written while the log was read"]
+
+
+def test_review_runs_with_stdout_and_stderr_closed(tmp_path):
+    """Started by a service with its streams closed: the report is written all the same."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "r.html"
+    code = ("import sys\nfrom warpbridge.bridge.cli import main\nsys.exit(main(sys.argv[1:]))")
+    proc = subprocess.run(["sh", "-c", 'exec "$0" "$@" 1>&- 2>&-', sys.executable, "-c", code, "review",
+                           str(BIN), str(DATA / "arduplane-flight-cycles.csv"), "-o", str(out)], timeout=300)
+    assert proc.returncode == 0 and out.stat().st_size > 10_000 and out.with_suffix(".json").exists()

@@ -395,6 +395,7 @@ def test_a_port_one_bridge_has_open_is_refused_to_another_as_in_use(board, maest
     link = tmp_path / "usb-Pololu_Maestro-if00"
     link.symlink_to(path)
     assert hw.open_sensor(f"maestro:{link}", shared_servo=maestro) is maestro
+    assert hw.sensor_on_servo_port(f"maestro:{link}", f"maestro:{path}")  # lost and reopened with the servo
     maestro.close()
     again = subprocess.run([sys.executable, "-c", probe, f"maestro:{path}"], capture_output=True, text=True,
                            timeout=60)

@@ -88,6 +88,26 @@ def test_float32_value_at_a_bound_is_accepted():
     assert store.set("WB_DEADBAND", f32) == 0.1
 
 
+def test_a_value_is_held_at_what_mavlink_carries_of_it(tmp_path):
+    """Defaults and bounds that are no short decimal (a model's parameter): the default sent back as float32
+    is the default, a value at a bound stays inside the range, and a value set with full precision from
+    inside the bridge is not changed by a ground station echoing its float32."""
+    default, top = 0.7153734786, 0.9071234567
+    path = tmp_path / "p.json"
+    store = ParamStore([ParamSpec("WB_BW_A2", default, 0.0, top, "a model parameter")], path)
+    assert store.set("WB_BW_A2", float(np.float32(default))) == default
+    assert store.get("WB_BW_A2") == default
+    assert store.set("WB_BW_A2", float(np.float32(top))) == top  # float32 of the bound: the bound, not above
+    assert store.set("WB_BW_A2", float(np.float32(0.7))) == 0.7  # a value a ground station typed, as typed
+    inside = store.set("WB_BW_A2", 0.31234567891234)  # from inside the bridge: float32's precision
+    assert inside == pytest.approx(0.31234567891234, rel=1e-7)
+    assert store.set("WB_BW_A2", float(np.float32(0.31234567891234))) == inside
+    store.set("WB_BW_A2", float(np.float32(default)))
+    assert store.flush()
+    assert json.loads(path.read_text())["params"] == {}  # back at the default: nothing stored
+    store.close()
+
+
 def test_values_persist_across_instances(tmp_path):
     path = tmp_path / "params.json"
     store = ParamStore(specs(), path)

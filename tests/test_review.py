@@ -365,9 +365,9 @@ def test_a_channel_the_log_cannot_carry_or_did_not_log_is_refused(synthetic):
     fc, _, _ = synthetic
     with pytest.raises(UserError, match="output 9 is not in this log .outputs logged: 1, 3."):
         review(fc, None, channel=9)
-    px4 = replace(fc, autopilot="px4")
-    with pytest.raises(UserError, match="--channel 17: px4 logs carry outputs 1 to 16"):
-        review(px4, None, channel=17)
+    ulog = replace(fc, autopilot="px4", fmt="ulog")
+    with pytest.raises(UserError, match="--channel 17: PX4 ULog logs carry outputs 1 to 16"):
+        review(ulog, None, channel=17)
 
 
 def test_a_multirotor_is_refused_unless_the_channel_is_given(synthetic):
@@ -467,4 +467,4 @@ def test_an_output_gain_against_the_warp_gain_implies_no_ff(synthetic):
 def test_a_gain_that_rounds_to_zero_is_printed_unsigned():
     g = review_cmd.GainFit("9-12 m/s", 9.0, 12.0, 100, -0.001, 0.0, 0.01, math.nan, math.nan, False)
     assert review_cmd._roll_line(g, px4=False).startswith("roll authority 9-12 m/s: 0.00 deg/s per deg (R2 0.01")
-    assert review_cmd._num(-0.0004, 1) == "0.0"
+    assert review_cmd.fmt_number(-0.0004, 1) == "0.0" and review_cmd.fmt_number(math.nan) == "-"

@@ -11,6 +11,7 @@ stamp are put on the FC's clock through the FC's own stamped messages (ATTITUDE,
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import io
 import logging
@@ -39,6 +40,7 @@ PX4_MAX_CHANNELS = 16  # PX4's actuator_outputs.output[16]
 DF_HEAD = b"\xa3\x95"  # every DataFlash message starts with these
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 MAVLINK_STX = (0xFE, 0xFD)  # MAVLink 1 and 2 frames; a tlog puts 8 bytes of time before each
+MAVLINK_IFLAG_SIGNED, MAVLINK_SIGNATURE_LEN = 0x01, 13  # a signed MAVLink 2 frame carries 13 more bytes
 SNIFF_BYTES = 65536
 # MAV_TYPEs without a wing to warp: multirotors, helicopters, ground and water vehicles
 WINGLESS_MAV_TYPES = {2, 3, 4, 10, 11, 12, 13, 14, 15, 29, 35, 43, 46}
@@ -94,7 +96,7 @@ class FcLog:
     autopilot: str  # ardupilot, px4
     named: dict[str, Series]
     outputs_t: np.ndarray
-    outputs: np.ndarray  # (samples, 16) servo outputs, us; NaN where not logged
+    outputs: np.ndarray  # (samples, 32) servo outputs, us; NaN where not logged
     roll: Series | None  # deg
     roll_rate: Series | None  # deg/s
     airspeed: Series | None  # m/s
@@ -118,8 +120,9 @@ class FcLog:
 
     @property
     def max_channel(self) -> int:
-        """The highest output number this autopilot's logs can carry."""
-        return PX4_MAX_CHANNELS if self.autopilot == "px4" else MAX_CHANNELS
+        """The highest output number this log's format can carry: 16 in a ULog (``actuator_outputs``), 32 in a
+        DataFlash log or a tlog (``SERVO_OUTPUT_RAW`` ports 0 and 1, PX4's AUX bank included)."""
+        return PX4_MAX_CHANNELS if self.fmt == "ulog" else MAX_CHANNELS
 
     @property
     def span(self) -> tuple[float, float]:
@@ -179,7 +182,8 @@ def sniff_format(path: Path) -> str | None:
             stx, n = head[k + 8], head[k + 9]
             if stx not in MAVLINK_STX:
                 break
-            k += 8 + n + (8 if stx == 0xFE else 12)
+            signed = stx == 0xFD and head[k + 10] & MAVLINK_IFLAG_SIGNED
+            k += 8 + n + (8 if stx == 0xFE else 12 + (MAVLINK_SIGNATURE_LEN if signed else 0))
             frames += 1
         if frames >= 3 or (frames and k >= len(head)):
             return "tlog"
@@ -201,62 +205,123 @@ def check_readable(path: str | os.PathLike, what: str = "") -> Path:
     return p
 
 
-@contextlib.contextmanager
-def _library_chatter() -> Iterator[list[str]]:
-    """pymavlink and pyulog print what they skip (one line per byte of a bad block; pymavlink's indexer from C,
-    to the process's stderr): caught, Python's and the C library's alike, to be counted. The list yielded
-    holds the text once the block is left; whatever else was written meanwhile (this program's log lines, a
-    library's other words) goes on to stderr then. A progress bar drawn on a copy of stderr's descriptor taken
-    before (``review``'s) stays live."""
-    captured: list[str] = []
-    buf = io.StringIO()
-    with tempfile.TemporaryFile() as sink:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        try:
-            saved = [os.dup(1), os.dup(2)]
-        except OSError:  # no descriptors to borrow (a detached process): Python's prints only
-            saved = []
-        for fd in (1, 2) if saved else ():
-            os.dup2(sink.fileno(), fd)
-        try:
-            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-                yield captured
-        finally:
-            sys.stdout.flush()
-            sys.stderr.flush()
-            for fd, old in zip((1, 2), saved, strict=False):
-                os.dup2(old, fd)
-                os.close(old)
-            sink.seek(0)
-            text = buf.getvalue() + sink.read().decode("utf-8", "replace")
-            captured.append(text)
-            rest = [line for line in text.splitlines(keepends=True) if not _is_chatter(line)]
-            if rest:
-                sys.stderr.write("".join(rest))
-                sys.stderr.flush()
+MAX_PASSED_LINES = 200  # lines of other output written during a read that are passed on; the rest counted
 
 
-def _is_chatter(line: str) -> bool:
-    """A reader's line about skipped bytes (counted by ``corruption_note``, not shown)."""
-    return (line.startswith(("bad header", "Skipped ")) or "corruption detected" in line
-            or "Failed to find sync" in line)
+class Chatter(io.TextIOBase):
+    """What the log readers print, taken line by line: their lines about skipped bytes counted (pymavlink
+    prints one per bad byte: hundreds of megabytes on a corrupt tail), other lines passed on to ``out`` (the
+    first ``MAX_PASSED_LINES``)."""
 
+    def __init__(self, out) -> None:
+        super().__init__()
+        self.out = out
+        self.bad_headers = self.skipped = self.passed = self.dropped = 0
+        self.ulog_corrupt = False
+        self._tail = ""
 
-def corruption_note(chatter: str) -> str | None:
-    """One line for what the libraries said they skipped, or None when they skipped nothing."""
-    bad = skipped = 0
-    for line in chatter.splitlines():
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        lines = (self._tail + text).split("\n")
+        self._tail = lines.pop()
+        for line in lines:
+            self._line(line)
+        return len(text)
+
+    def feed(self, fh) -> None:
+        """Everything a file holds (the readers' descriptor-level output), in blocks."""
+        decoder = codecs.getincrementaldecoder("utf-8")("replace")
+        while block := fh.read(1 << 16):
+            self.write(decoder.decode(block))
+        self.write(decoder.decode(b"", final=True))
+
+    def close_lines(self) -> None:
+        """The last line, if it had no newline; a count of the lines not passed on."""
+        if self._tail:
+            self._line(self._tail)
+            self._tail = ""
+        if self.dropped and self.out is not None:
+            self.out.write(f"... {self.dropped} more lines written while the log was read\n")
+
+    def _line(self, line: str) -> None:
         if line.startswith("bad header"):
-            bad += 1
-        elif m := re.match(r"Skipped (\d+) bad bytes", line):
-            skipped += int(m.group(1))
-    if bad or skipped:
-        # the indexer reports each bad byte; the message reader the same bytes again as runs: the larger count
-        return f"skipped {max(bad, skipped)} bytes of corrupt data"
-    if "corruption detected" in chatter or "Failed to find sync" in chatter:
-        return ULOG_CORRUPT_NOTE
-    return None
+            self.bad_headers += 1
+        elif m := SKIPPED_LINE.match(line):
+            self.skipped += int(m.group(1))
+        elif "corruption detected" in line or "Failed to find sync" in line:
+            self.ulog_corrupt = True
+        elif self.passed < MAX_PASSED_LINES:
+            self.passed += 1
+            if self.out is not None:
+                self.out.write(line + "\n")
+        else:
+            self.dropped += 1
+
+    def note(self) -> str | None:
+        """One line for what the readers said they skipped, or None when they skipped nothing."""
+        if self.bad_headers or self.skipped:
+            # the indexer reports each bad byte; the message reader the same bytes again as runs: the larger count
+            return f"skipped {max(self.bad_headers, self.skipped)} bytes of corrupt data"
+        return ULOG_CORRUPT_NOTE if self.ulog_corrupt else None
+
+
+SKIPPED_LINE = re.compile(r"Skipped (\d+) bad bytes")
+
+
+def _flush(stream) -> None:
+    if stream is not None:
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+
+
+@contextlib.contextmanager
+def _library_chatter() -> Iterator[tuple[Chatter, Chatter]]:
+    """pymavlink and pyulog print what they skip (one line per byte of a bad block; pymavlink's indexer from C,
+    to the process's descriptors): caught, Python's and the C library's alike, and counted (``Chatter``, one
+    for stdout and one for stderr); whatever else was written meanwhile (this program's log lines, a library's
+    other words) goes on to the stream it was written to once the block is left. A progress bar drawn on a
+    copy of stderr's descriptor taken before (``review``'s) stays live. A closed stdout or stderr is left
+    alone."""
+    streams = (sys.stdout, sys.stderr)
+    said = (Chatter(streams[0]), Chatter(streams[1]))
+    with tempfile.TemporaryFile() as sink1, tempfile.TemporaryFile() as sink2:
+        sinks = {1: sink1, 2: sink2}
+        saved: dict[int, int] = {}
+        for fd, stream in zip((1, 2), streams, strict=True):
+            _flush(stream)
+            try:
+                saved[fd] = os.dup(fd)
+            except OSError:  # closed, or no descriptors to borrow: Python's prints only
+                continue
+            os.dup2(sinks[fd].fileno(), fd)
+        try:
+            with contextlib.redirect_stdout(said[0]), contextlib.redirect_stderr(said[1]):
+                yield said
+        finally:
+            for fd, stream in zip((1, 2), streams, strict=True):
+                _flush(stream)
+                if fd in saved:
+                    os.dup2(saved[fd], fd)
+                    os.close(saved[fd])
+            for fd, chatter in zip((1, 2), said, strict=True):
+                sinks[fd].seek(0)
+                chatter.feed(sinks[fd])
+                chatter.close_lines()
+                _flush(chatter.out)
+
+
+def corruption_note(said: tuple[Chatter, ...]) -> str | None:
+    """One line for what the readers said they skipped on any stream, or None."""
+    merged = Chatter(None)
+    for c in said:
+        merged.bad_headers += c.bad_headers
+        merged.skipped += c.skipped
+        merged.ulog_corrupt |= c.ulog_corrupt
+    return merged.note()
 
 
 ULOG_CORRUPT_NOTE = "skipped corrupt data (the ULog reader resynchronised past it)"
@@ -278,9 +343,9 @@ def read_fc_log(path: str | os.PathLike, progress: Progress | None = None) -> Fc
     if fmt != expected:
         log.info("%s: named as %s, reads as %s", p, expected, fmt)
     reader = {"dataflash": _read_dataflash, "tlog": _read_tlog, "ulog": _read_ulog}[fmt]
-    with _library_chatter() as chatter:
+    with _library_chatter() as said:
         out = reader(p, progress)
-    if (note := corruption_note("".join(chatter))) is not None and note not in out.notes:
+    if (note := corruption_note(said)) is not None and note not in out.notes:
         out.notes.append(note)
     for note in out.notes:
         if note.startswith("skipped "):
@@ -554,7 +619,7 @@ def _df_events(df) -> tuple[list[FcEvent], dict[str, float], list[tuple[float, i
             modes.append((t, int(num) if isinstance(num, int | float) else _text(num)))
         elif mt == "MSG":
             text = _text(_f(m, "Message", ""))
-            if not firmware and FIRMWARE_BANNER.match(text):
+            if not firmware and firmware_kind(text) is not None:
                 firmware = text
             events.append(_text_event(t, text))
         elif mt == "PARM":
@@ -590,29 +655,41 @@ _ARDUPILOT_FIRMWARE = {"arduplane": 1, "apm:plane": 1, "arducopter": 2, "apm:cop
 _COPTER_FRAME_CLASS = {1: 2, 2: 13, 3: 14, 4: 14, 5: 13, 6: 4, 7: 15, 8: 2, 10: 1, 11: 4, 12: 35, 13: 4, 14: 35,
                        15: 29}
 ARDUPILOT_MOTOR_FUNCTIONS = range(33, 41)  # SERVOn_FUNCTION Motor1..Motor8
+# SERVOn_FUNCTIONs of a wing's roll surface: aileron, differential spoilers, flaperons, elevons, V-tail
+ARDUPILOT_WING_FUNCTIONS = {4, 16, 17, 24, 25, 77, 78, 79, 80, 86, 87}
+
+
+def firmware_kind(text: str) -> int | None:
+    """The MAV_TYPE an ArduPilot firmware banner names (``ArduPlane V4.5.7 (...)``: 1), None for other texts
+    (``ArduPilot Ready``)."""
+    m = FIRMWARE_BANNER.match(text)
+    return _ARDUPILOT_FIRMWARE.get(m.group(1).lower()) if m else None
 
 
 def ardupilot_vehicle(firmware: str, params: dict[str, float]) -> tuple[int | None, str]:
     """(MAV_TYPE, what said it) from the firmware's banner in the log's texts, else its parameters."""
-    m = FIRMWARE_BANNER.match(firmware)
-    kind = _ARDUPILOT_FIRMWARE.get(m.group(1).lower()) if m else None
+    kind = firmware_kind(firmware)
+    said = f"firmware {firmware.split(' (')[0]}"
     if kind == 2 and "FRAME_CLASS" in params:
         frame = int(params["FRAME_CLASS"])
-        return _COPTER_FRAME_CLASS.get(frame, 2), f"firmware {firmware.split(' (')[0]}, FRAME_CLASS {frame}"
+        return _COPTER_FRAME_CLASS.get(frame, 2), f"{said}, FRAME_CLASS {frame}"
     if kind == 1 and params.get("Q_ENABLE", 0) >= 1:
-        return 20, f"firmware {firmware.split(' (')[0]}, Q_ENABLE 1"
+        return 20, f"{said}, Q_ENABLE 1"
     if kind == 10 and int(params.get("FRAME_CLASS", 1)) == 2:
-        return 11, f"firmware {firmware.split(' (')[0]}, FRAME_CLASS 2"
+        return 11, f"{said}, FRAME_CLASS 2"
     if kind is not None:
-        return kind, f"firmware {firmware.split(' (')[0]}"
-    if "FRAME_CLASS" in params and "ATC_RAT_RLL_P" in params:  # Copter's parameters, no banner
+        return kind, said
+    # no banner: Plane's parameters first (a QuadPlane has motors and a wing)
+    if params.get("Q_ENABLE", 0) >= 1:
+        return 20, "parameter Q_ENABLE 1 (ArduPlane's)"
+    if "RLL2SRV_P" in params or "RLL_RATE_FF" in params:
+        return 1, "parameters RLL2SRV_P/RLL_RATE_FF (ArduPlane's)"
+    if "FRAME_CLASS" in params and "ATC_RAT_RLL_P" in params:  # Copter's parameters
         frame = int(params["FRAME_CLASS"])
         return _COPTER_FRAME_CLASS.get(frame, 2), f"parameters FRAME_CLASS {frame}, ATC_RAT_RLL_P"
     functions = {int(v) for k, v in params.items() if re.fullmatch(r"SERVO\d+_FUNCTION", k)}
-    if any(f in ARDUPILOT_MOTOR_FUNCTIONS for f in functions) and ARDUPILOT_AILERON_FUNCTION not in functions:
-        return 43, "SERVOn_FUNCTION: motors and no aileron"
-    if "RLL2SRV_P" in params or "RLL_RATE_FF" in params:
-        return 1, "parameters RLL2SRV_P/RLL_RATE_FF (ArduPlane's)"
+    if functions & set(ARDUPILOT_MOTOR_FUNCTIONS) and not functions & ARDUPILOT_WING_FUNCTIONS:
+        return 43, "SERVOn_FUNCTION: motors and no roll surface of a wing"
     return None, ""
 
 
@@ -621,9 +698,8 @@ def ardupilot_mode_names(mav_type: int | None, firmware: str) -> dict[int, str]:
     does not say what the vehicle is: a copter's mode is not decoded with a plane's table."""
     from pymavlink import mavutil
 
-    m = FIRMWARE_BANNER.match(firmware)
-    if m and _ARDUPILOT_FIRMWARE.get(m.group(1).lower()) == 1:
-        mav_type = 1
+    if firmware_kind(firmware) == 1 or mav_type == 20 and firmware_kind(firmware) is None:
+        mav_type = 1  # a QuadPlane's modes are Plane's
     if mav_type is None:
         return {}
     return dict(mavutil.mode_mapping_bynumber(mav_type) or {})
@@ -816,16 +892,12 @@ PX4_NAV_STATES = {0: "MANUAL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO_MISSION", 4: "
                   18: "AUTO_LAND", 19: "AUTO_FOLLOW_TARGET", 20: "AUTO_PRECLAND", 21: "ORBIT"}
 
 
-# CA_AIRFRAME -> MAV_TYPE: multirotor, fixed wing, standard VTOL, tiltrotor, tailsitter, rovers, helicopters
-_PX4_AIRFRAME = {0: 2, 1: 1, 2: 22, 3: 21, 4: 19, 5: 10, 6: 10, 9: 4, 10: 4, 11: 3, 12: 10}
-
-
 def px4_vehicle(params: dict[str, float]) -> tuple[int | None, str]:
-    """(MAV_TYPE, what said it) from PX4's parameters: MAV_TYPE, else CA_AIRFRAME."""
+    """(MAV_TYPE, what said it) from PX4's ``MAV_TYPE`` parameter. ``CA_AIRFRAME`` is not read: its numbers
+    changed between releases (1 was a standard VTOL, now a fixed wing; 9 is "custom"), and a log from before
+    control allocation holds its default, 0 (multirotor), whatever flew."""
     if "MAV_TYPE" in params:
         return int(params["MAV_TYPE"]), f"parameter MAV_TYPE {int(params['MAV_TYPE'])}"
-    if "CA_AIRFRAME" in params and int(params["CA_AIRFRAME"]) in _PX4_AIRFRAME:
-        return _PX4_AIRFRAME[int(params["CA_AIRFRAME"])], f"parameter CA_AIRFRAME {int(params['CA_AIRFRAME'])}"
     return None, ""
 
 

@@ -15,12 +15,15 @@ feed-forward of the FC's roll-rate controller it implies.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import logging
 import math
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -411,13 +414,17 @@ def link_stats(f: Flight, fc: FcLog, cl: CycleLog | None) -> LinkStats:
                      dict(fc.link_loss))
 
 
+FORMAT_NAMES = {"ulog": "PX4 ULog", "dataflash": "DataFlash", "tlog": "tlog"}
+
+
 def check_vehicle_and_channel(fc: FcLog, channel: int | None) -> list[str]:
     """The warnings of the vehicle's type and the aileron's output; a UserError for a vehicle without a wing
     (unless ``channel`` names the output to review), or a ``channel`` this log cannot carry or did not log."""
     warnings = []
     if channel is not None:
         if not 1 <= channel <= fc.max_channel:
-            raise UserError(f"--channel {channel}: {fc.autopilot} logs carry outputs 1 to {fc.max_channel}")
+            raise UserError(f"--channel {channel}: {FORMAT_NAMES.get(fc.fmt, fc.fmt)} logs carry outputs 1 to "
+                            f"{fc.max_channel}")
         if fc.outputs_t.size and fc.output(channel) is None:
             logged = [ch for ch in range(1, fc.outputs.shape[1] + 1) if fc.output(ch) is not None]
             raise UserError(f"--channel {channel}: output {channel} is not in this log (outputs logged: "
@@ -513,7 +520,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", help="REPORT.html to write (default: LOG's name with -review.html); the "
                                           "JSON summary goes beside it (.json)")
     p.add_argument("--channel", type=int,
-                   help="the FC output carrying the aileron, 1 to 32 (PX4: 16) (default: from its parameters); "
+                   help="the FC output carrying the aileron, 1 to 32 (a PX4 .ulg: 16) (default: from its parameters); "
                         "needed to review a log whose vehicle has no wing")
     p.add_argument("--bands", help="airspeed band edges, m/s, e.g. 10,14,18,22 (default: 3 m/s bands)")
     p.add_argument("--trim", type=float, default=1500.0, help="aileron output trim, us, 500 to 2500 (default 1500)")
@@ -522,27 +529,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _progress(quiet: bool):
-    if quiet or not sys.stderr.isatty():
-        return None
+@contextlib.contextmanager
+def _progress(quiet: bool) -> Iterator[Callable[[int, int], None] | None]:
+    """A progress bar for reading the FC's log on a terminal (None: no bar), closed however the read ends."""
+    stream = None
+    if not quiet and sys.stderr is not None and sys.stderr.isatty():
+        try:  # drawn on a copy of stderr's descriptor: the log reader silences the descriptor while it reads
+            stream = os.fdopen(os.dup(sys.stderr.fileno()), "w")
+        except (OSError, ValueError, io.UnsupportedOperation):
+            stream = None
+    if stream is None:
+        yield None
+        return
     from tqdm import tqdm
 
-    # drawn on a copy of stderr's descriptor: the log reader silences the descriptor itself while it reads
-    stream = os.fdopen(os.dup(sys.stderr.fileno()), "w")
     bar = tqdm(total=100, unit="%", desc="reading", leave=False, file=stream)
 
     def update(done: int, total: int) -> None:
         bar.n = int(100 * done / max(total, 1))
         bar.refresh()
-        if done >= total:
-            bar.close()
-            stream.close()
 
-    return update
+    try:
+        yield update
+    finally:
+        bar.close()
+        stream.close()
 
 
-def _num(x: float, digits: int) -> str:
-    """``x`` to ``digits`` decimals, a zero never signed ("-0.00" is "0.00")."""
+def fmt_number(x: float | None, digits: int = 3) -> str:
+    """``x`` to ``digits`` decimals, a zero never signed ("-0.00" is "0.00"); "-" for None and NaN."""
+    if x is None or not math.isfinite(x):
+        return "-"
     return f"{round(x, digits) + 0.0:.{digits}f}"
 
 
@@ -570,7 +587,7 @@ def check_options(args: argparse.Namespace) -> Path:
     """Refuse options that cannot be right before any log is read; the report's path."""
     if args.channel is not None and not 1 <= args.channel <= MAX_CHANNELS:
         raise UserError(f"--channel {args.channel}: outputs are numbered 1 to {MAX_CHANNELS} (ArduPilot's "
-                        "SERVO1..32; PX4 logs 1 to 16)")
+                        "SERVO1..32; a PX4 .ulg 1 to 16)")
     if not math.isfinite(args.trim) or not PWM_RANGE_US[0] <= args.trim <= PWM_RANGE_US[1]:
         raise UserError(f"--trim {args.trim:g}: give the aileron output's trim in us, {PWM_RANGE_US[0]:.0f} to "
                         f"{PWM_RANGE_US[1]:.0f}")
@@ -599,9 +616,9 @@ def _join_line(al: Alignment) -> str:
     line = f"join: {al.method}, offset {al.offset_s:.3f} s"
     if not math.isfinite(al.check_lag_s):
         return line + ", not checked"
-    line += f", check lag {_num(al.check_lag_s * 1e3, 1)} ms (|r| {al.check_corr:.3f})"
+    line += f", check lag {fmt_number(al.check_lag_s * 1e3, 1)} ms (|r| {al.check_corr:.3f})"
     if math.isfinite(al.residual_s):
-        return line + f", residual {_num(al.residual_s * 1e3, 1)} ms"
+        return line + f", residual {fmt_number(al.residual_s * 1e3, 1)} ms"
     return line + ", residual none (placed by cross-correlation)"
 
 
@@ -611,12 +628,13 @@ def _roll_line(g: GainFit, px4: bool) -> str:
              if g.lo_ms < MIN_AIRBORNE_MS else "")
     if g.n == 0:
         return f"roll authority {g.band}: no samples in this band{below}"
-    fit = f"{_num(g.gain, 2)} deg/s per deg (R2 {_num(g.r2, 2)}, n {g.n})" if math.isfinite(g.gain) else f"n {g.n}"
+    fit = (f"{fmt_number(g.gain, 2)} deg/s per deg (R2 {fmt_number(g.r2, 2)}, n {g.n})" if math.isfinite(g.gain)
+           else f"n {g.n}")
     if g.n < MIN_BAND_SAMPLES:
         return f"roll authority {g.band}: {fit}, too few samples to fit (fewer than {MIN_BAND_SAMPLES}){below}"
     if not g.reliable:
         return f"roll authority {g.band}: {fit}, too little manoeuvring to fit{below}"
-    out = (f"{_num(g.output_gain, 0)} deg/s per full output (R2 {_num(g.output_r2, 2)})"
+    out = (f"{fmt_number(g.output_gain, 0)} deg/s per full output (R2 {fmt_number(g.output_r2, 2)})"
            if math.isfinite(g.output_gain) else "")
     if g.no_ff:
         said = f"{out}; " if out else ""
@@ -633,7 +651,8 @@ def main(args: argparse.Namespace) -> int:
     out = check_options(args)
     bands = parse_bands(args.bands)
     log.info("reading %s", args.log)
-    fc = read_fc_log(args.log, progress=_progress(args.no_progress))
+    with _progress(args.no_progress) as progress:
+        fc = read_fc_log(args.log, progress=progress)
     f0, f1 = fc.span
     log.info("read %.0f s of flight from %s in %.1f s", f1 - f0, args.log, time.perf_counter() - t0)
     cl = read_cycle_log(args.cyclelog) if args.cyclelog else None

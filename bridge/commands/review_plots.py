@@ -17,7 +17,7 @@ import numpy as np
 from warpbridge.bridge.commands.fclog import FcLog
 from warpbridge.bridge.commands.logfile import write_text_atomic
 from warpbridge.bridge.commands.logjoin import WINGS, Alignment, CycleLog
-from warpbridge.bridge.commands.review import MIN_FIT_R2, PHASES, Flight, Review
+from warpbridge.bridge.commands.review import MIN_FIT_R2, PHASES, Flight, Review, fmt_number
 
 MAX_POINTS = 20000  # per line: a long flight is thinned for drawing (never for the numbers)
 EVENT_COLOURS = {"mode": "tab:blue", "param": "tab:purple", "failsafe": "tab:red", "text": "0.5", "bridge": "tab:green"}
@@ -259,8 +259,8 @@ def fig_join(al: Alignment, f: Flight, fc: FcLog, cl: CycleLog):
     if al.unchecked:
         ax.set_title(f"join ({al.method}): alignment not checked: {al.unchecked}", fontsize=10)
     else:
-        ax.set_title(f"join ({al.method}): check lag {_num(al.check_lag_s * 1e3, '{:.1f}')} ms, expected "
-                     f"{_num(al.expected_lag_s * 1e3, '{:.1f}')} ms, residual {_num(al.residual_s * 1e3, '{:.1f}')} ms",
+        ax.set_title(f"join ({al.method}): check lag {fmt_number(al.check_lag_s * 1e3, 1)} ms, expected "
+                     f"{fmt_number(al.expected_lag_s * 1e3, 1)} ms, residual {fmt_number(al.residual_s * 1e3, 1)} ms",
                      fontsize=10)
     fig.tight_layout()
     return fig
@@ -273,14 +273,6 @@ def png(fig) -> str:
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _num(x: float, fmt: str = "{:.3f}") -> str:
-    """``x`` formatted, "-" for None and NaN; a zero is never signed."""
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    text = fmt.format(x)
-    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
 
 
 def _table(head: list[str], rows: list[list[str]]) -> str:
@@ -312,15 +304,16 @@ def write_html(out: Path, rv: Review, f: Flight, fc: FcLog, cl: CycleLog | None,
         parts.append(_table(["method", "offset, s", "drift, ppm", "check lag, ms", "expected, ms", "residual, ms",
                              "|r|", "overlap, s", "telemetry lag, ms"],
                             [[al.method, f"{al.offset_s:.4f}", f"{al.drift * 1e6:.1f}",
-                              _num(al.check_lag_s * 1e3, "{:.1f}"),
-                              _num(al.expected_lag_s * 1e3, "{:.1f}"), _num(al.residual_s * 1e3, "{:.1f}"),
-                              _num(al.check_corr), f"{al.overlap_s:.1f}", _num(al.telemetry_lag_s * 1e3, "{:.0f}")]]))
+                              fmt_number(al.check_lag_s * 1e3, 1),
+                              fmt_number(al.expected_lag_s * 1e3, 1), fmt_number(al.residual_s * 1e3, 1),
+                              fmt_number(al.check_corr), f"{al.overlap_s:.1f}",
+                              fmt_number(al.telemetry_lag_s * 1e3, 0)]]))
         parts.append(f"<img src='data:image/png;base64,{png(fig_join(al, f, fc, cl))}'>")
     parts.append("<h2>Per wing over the flight</h2>")
     parts.append(f"<img src='data:image/png;base64,{png(fig_overview(rv, f))}'>")
     parts.append("<h2>Tracking error</h2>")
     for w in WINGS:
-        rows = [[s.label, s.n, _num(s.rms), _num(s.mean), _num(s.p95)]
+        rows = [[s.label, s.n, fmt_number(s.rms), fmt_number(s.mean), fmt_number(s.p95)]
                 for key in ("all", "airspeed", "phase") for s in rv.tracking[w][key]]
         parts.append(f"<h3>{w} wing</h3>" + _table(["where", "samples", "RMS, deg", "mean, deg", "95% |e|, deg"], rows))
     parts.append(f"<img src='data:image/png;base64,{png(fig_tracking(rv))}'>")
@@ -333,9 +326,9 @@ def write_html(out: Path, rv: Review, f: Flight, fc: FcLog, cl: CycleLog | None,
     parts.append(_table(["airspeed band", "samples", "gain, deg/s per deg", "bias, deg/s", "R2",
                          "deg/s per full output", "output R2", *([] if px4 else ["RLL_RATE_FF implied"]),
                          "no FF because"],
-                        [[g.band, g.n, _num(g.gain), _num(g.bias, "{:.2f}"), _num(g.r2, "{:.2f}"),
-                          _num(g.output_gain, "{:.1f}"), _num(g.output_r2, "{:.2f}"),
-                          *([] if px4 else [_num(g.ff_ardupilot)]), g.no_ff or "-"]
+                        [[g.band, g.n, fmt_number(g.gain), fmt_number(g.bias, 2), fmt_number(g.r2, 2),
+                          fmt_number(g.output_gain, 1), fmt_number(g.output_r2, 2),
+                          *([] if px4 else [fmt_number(g.ff_ardupilot)]), g.no_ff or "-"]
                          for g in rv.roll_authority]))
     lead = (f"<p>Roll rate {rv.roll_lag_s * 1e3:.0f} ms after the "
             f"{'measured' if rv.roll_uses_measured_warp else 'commanded'} differential warp (the lag where they "
@@ -350,8 +343,8 @@ def write_html(out: Path, rv: Review, f: Flight, fc: FcLog, cl: CycleLog | None,
     parts.append("<h2>Link</h2>")
     ls = rv.link
     parts.append(_table(["latency median, ms", "95%, ms", "max, ms", "servo messages", "lost"],
-                        [[_num(ls.latency_median_ms, "{:.1f}"), _num(ls.latency_p95_ms, "{:.1f}"),
-                          _num(ls.latency_max_ms, "{:.1f}"), ls.servo_messages or "-", ls.servo_lost]]))
+                        [[fmt_number(ls.latency_median_ms, 1), fmt_number(ls.latency_p95_ms, 1),
+                          fmt_number(ls.latency_max_ms, 1), ls.servo_messages or "-", ls.servo_lost]]))
     if ls.tlog_loss:
         parts.append(_table(["source (sys/comp)", "received", "lost (sequence gaps)"],
                             [[k, v[0], v[1]] for k, v in sorted(ls.tlog_loss.items())]))
