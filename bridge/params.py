@@ -39,6 +39,7 @@ NAME_MAX = 16
 # MAVLink carries values as float32: a value within this relative distance of a
 # bound is taken as the bound (0.1 sent as float32 is 0.100000001).
 _F32_TOL = 1e-6
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 class ParamError(ValueError):
@@ -63,6 +64,8 @@ class ParamSpec:
         for v in (self.default, self.min, self.max):
             if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{self.name}: default/min/max must be finite numbers")
+            if abs(v) > FLOAT32_MAX:
+                raise ValueError(f"{self.name}: default/min/max beyond what MAVLink's float32 carries")
         if not self.min <= self.default <= self.max:
             raise ValueError(f"{self.name}: default {self.default} outside {self.min}..{self.max}")
         if self.integer and not all(float(v).is_integer() for v in (self.default, self.min, self.max)):

@@ -371,7 +371,7 @@ def test_reading_keeps_the_readers_byte_by_byte_chatter_out_and_lets_the_rest_th
     out, err = capfd.readouterr()
     assert "bad header" not in out + err and "Skipped" not in out + err
     assert "a line of ours" in err and "a library's other words" in err
-    assert fclog.corruption_note(said) == "skipped 4 bytes of corrupt data"
+    assert said.note() == "skipped 4 bytes of corrupt data"
 
 
 def test_a_signed_tlog_is_read_as_a_tlog(tmp_path):
@@ -408,7 +408,6 @@ def test_chatter_is_counted_as_it_comes_and_other_lines_passed_on_up_to_a_cap(tm
     chatter = Chatter(out)
     with dump.open("rb") as fh:
         chatter.feed(fh)
-    chatter.close_lines()
     assert (chatter.bad_headers, chatter.skipped) == (100_000, 7)
     assert chatter.note() == "skipped 100000 bytes of corrupt data"
     lines = out.getvalue().splitlines()
@@ -426,3 +425,33 @@ def test_review_runs_with_stdout_and_stderr_closed(tmp_path):
     proc = subprocess.run(["sh", "-c", 'exec "$0" "$@" 1>&- 2>&-', sys.executable, "-c", code, "review",
                            str(BIN), str(DATA / "arduplane-flight-cycles.csv"), "-o", str(out)], timeout=300)
     assert proc.returncode == 0 and out.stat().st_size > 10_000 and out.with_suffix(".json").exists()
+
+
+CHATTER_SCRIPT = """
+import os, sys
+from warpbridge.bridge.commands import fclog
+with fclog._library_chatter() as said:
+    for i in range(150):
+        print(f"python line {i}", file=sys.stderr)
+    print("a library's print to stdout")
+    os.write(2, b"bad header 0x00 0x00 at 1\\n" * 3)
+    os.write(2, b"c line\\n")
+print(f"counted {said.bad_headers} passed {said.passed} dropped {said.dropped}", file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize("closed", ["", "<&- >&-"])
+def test_chatter_of_a_real_process_is_counted_once_and_passed_to_stderr(closed):
+    """Outside pytest's capture: the readers' lines are counted once, whichever stream and level they come
+    from; the rest reaches stderr in order, stdout's too (a report's stdout holds its results only), also
+    with stdin and stdout closed (a temporary file then takes no standard descriptor's number)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run(["sh", "-c", f'exec "$0" "$@" {closed}', sys.executable, "-c", CHATTER_SCRIPT],
+                          stdout=None if closed else subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert lines[:150] == [f"python line {i}" for i in range(150)]
+    assert lines[150:] == ["a library's print to stdout", "c line", "counted 3 passed 152 dropped 0"]
+    assert not proc.stdout

@@ -53,6 +53,8 @@ def test_spec_rejects_bad_definitions():
         ParamSpec("WB_X", 5, 0, 1, "default outside range")
     with pytest.raises(ValueError):
         ParamSpec("WB_X", 0.5, 0, 1, "integer with fraction", integer=True)
+    with pytest.raises(ValueError, match="float32"):
+        ParamSpec("WB_X", 0.5, 0, 1e39, "a bound MAVLink cannot carry")
 
 
 def test_set_validates_and_applies_live():

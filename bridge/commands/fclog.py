@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import codecs
 import contextlib
+import fcntl
 import io
 import logging
 import math
@@ -206,44 +207,40 @@ def check_readable(path: str | os.PathLike, what: str = "") -> Path:
 
 
 MAX_PASSED_LINES = 200  # lines of other output written during a read that are passed on; the rest counted
+MAX_LINE = 65536  # text without a newline longer than this is taken as a line (a \r progress bar, say)
 
 
-class Chatter(io.TextIOBase):
-    """What the log readers print, taken line by line: their lines about skipped bytes counted (pymavlink
-    prints one per bad byte: hundreds of megabytes on a corrupt tail), other lines passed on to ``out`` (the
-    first ``MAX_PASSED_LINES``)."""
+class Chatter:
+    """What the log readers print, taken line by line as it is read back: their lines about skipped bytes
+    counted (pymavlink prints one per bad byte: hundreds of megabytes on a corrupt tail), other lines passed
+    on to ``out`` (the first ``MAX_PASSED_LINES``)."""
 
     def __init__(self, out) -> None:
-        super().__init__()
         self.out = out
         self.bad_headers = self.skipped = self.passed = self.dropped = 0
         self.ulog_corrupt = False
         self._tail = ""
 
-    def writable(self) -> bool:
-        return True
-
-    def write(self, text: str) -> int:
-        lines = (self._tail + text).split("\n")
-        self._tail = lines.pop()
-        for line in lines:
-            self._line(line)
-        return len(text)
-
     def feed(self, fh) -> None:
-        """Everything a file holds (the readers' descriptor-level output), in blocks."""
+        """Everything a binary file holds, in blocks, then the last line if it had no newline."""
         decoder = codecs.getincrementaldecoder("utf-8")("replace")
         while block := fh.read(1 << 16):
-            self.write(decoder.decode(block))
-        self.write(decoder.decode(b"", final=True))
-
-    def close_lines(self) -> None:
-        """The last line, if it had no newline; a count of the lines not passed on."""
+            self._write(decoder.decode(block))
+        self._write(decoder.decode(b"", final=True))
         if self._tail:
             self._line(self._tail)
             self._tail = ""
         if self.dropped and self.out is not None:
             self.out.write(f"... {self.dropped} more lines written while the log was read\n")
+
+    def _write(self, text: str) -> None:
+        lines = (self._tail + text).split("\n")
+        self._tail = lines.pop()
+        if len(self._tail) > MAX_LINE:
+            lines.append(self._tail)
+            self._tail = ""
+        for line in lines:
+            self._line(line)
 
     def _line(self, line: str) -> None:
         if line.startswith("bad header"):
@@ -255,7 +252,7 @@ class Chatter(io.TextIOBase):
         elif self.passed < MAX_PASSED_LINES:
             self.passed += 1
             if self.out is not None:
-                self.out.write(line + "\n")
+                self.out.write(line[:1000] + "\n")
         else:
             self.dropped += 1
 
@@ -278,50 +275,57 @@ def _flush(stream) -> None:
             pass
 
 
+def _is_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
+
+
+def _sink():
+    """A temporary file on a descriptor above 2 (with stdin, stdout or stderr closed, a new file would take
+    their number and be written by whatever writes there)."""
+    f = tempfile.TemporaryFile()
+    if f.fileno() > 2:
+        return f
+    high = fcntl.fcntl(f.fileno(), fcntl.F_DUPFD, 3)
+    f.close()
+    return os.fdopen(high, "w+b")
+
+
 @contextlib.contextmanager
-def _library_chatter() -> Iterator[tuple[Chatter, Chatter]]:
+def _library_chatter() -> Iterator[Chatter]:
     """pymavlink and pyulog print what they skip (one line per byte of a bad block; pymavlink's indexer from C,
-    to the process's descriptors): caught, Python's and the C library's alike, and counted (``Chatter``, one
-    for stdout and one for stderr); whatever else was written meanwhile (this program's log lines, a library's
-    other words) goes on to the stream it was written to once the block is left. A progress bar drawn on a
-    copy of stderr's descriptor taken before (``review``'s) stays live. A closed stdout or stderr is left
-    alone."""
-    streams = (sys.stdout, sys.stderr)
-    said = (Chatter(streams[0]), Chatter(streams[1]))
-    with tempfile.TemporaryFile() as sink1, tempfile.TemporaryFile() as sink2:
-        sinks = {1: sink1, 2: sink2}
+    to the process's descriptors): caught, Python's and the C library's alike, in one file, and counted when
+    the block is left (``Chatter``); what else was written meanwhile (this program's log lines, a library's
+    other words) goes on to stderr then. A progress bar drawn on a copy of stderr's descriptor taken before
+    (``review``'s) stays live. A closed stdout or stderr stays closed."""
+    said = Chatter(sys.stderr)
+    open_fds = [fd for fd in (1, 2) if _is_open(fd)]
+    with _sink() as sink:
+        # Python's writes go to the same file as the descriptors', in the order they are made
+        text = io.TextIOWrapper(io.FileIO(sink.fileno(), "w", closefd=False), encoding="utf-8", errors="replace",
+                                line_buffering=True, write_through=True)
         saved: dict[int, int] = {}
-        for fd, stream in zip((1, 2), streams, strict=True):
+        for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
             _flush(stream)
-            try:
+            if fd in open_fds:
                 saved[fd] = os.dup(fd)
-            except OSError:  # closed, or no descriptors to borrow: Python's prints only
-                continue
-            os.dup2(sinks[fd].fileno(), fd)
+                os.dup2(sink.fileno(), fd)
         try:
-            with contextlib.redirect_stdout(said[0]), contextlib.redirect_stderr(said[1]):
+            with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
                 yield said
         finally:
-            for fd, stream in zip((1, 2), streams, strict=True):
+            _flush(text)
+            for stream in (sys.stdout, sys.stderr):
                 _flush(stream)
-                if fd in saved:
-                    os.dup2(saved[fd], fd)
-                    os.close(saved[fd])
-            for fd, chatter in zip((1, 2), said, strict=True):
-                sinks[fd].seek(0)
-                chatter.feed(sinks[fd])
-                chatter.close_lines()
-                _flush(chatter.out)
-
-
-def corruption_note(said: tuple[Chatter, ...]) -> str | None:
-    """One line for what the readers said they skipped on any stream, or None."""
-    merged = Chatter(None)
-    for c in said:
-        merged.bad_headers += c.bad_headers
-        merged.skipped += c.skipped
-        merged.ulog_corrupt |= c.ulog_corrupt
-    return merged.note()
+            for fd, old in saved.items():
+                os.dup2(old, fd)
+                os.close(old)
+            sink.seek(0)
+            said.feed(sink)
+            _flush(said.out)
 
 
 ULOG_CORRUPT_NOTE = "skipped corrupt data (the ULog reader resynchronised past it)"
@@ -345,7 +349,7 @@ def read_fc_log(path: str | os.PathLike, progress: Progress | None = None) -> Fc
     reader = {"dataflash": _read_dataflash, "tlog": _read_tlog, "ulog": _read_ulog}[fmt]
     with _library_chatter() as said:
         out = reader(p, progress)
-    if (note := corruption_note(said)) is not None and note not in out.notes:
+    if (note := said.note()) is not None and note not in out.notes:
         out.notes.append(note)
     for note in out.notes:
         if note.startswith("skipped "):
@@ -698,8 +702,8 @@ def ardupilot_mode_names(mav_type: int | None, firmware: str) -> dict[int, str]:
     does not say what the vehicle is: a copter's mode is not decoded with a plane's table."""
     from pymavlink import mavutil
 
-    if firmware_kind(firmware) == 1 or mav_type == 20 and firmware_kind(firmware) is None:
-        mav_type = 1  # a QuadPlane's modes are Plane's
+    if firmware_kind(firmware) == 1:
+        mav_type = 1  # a QuadPlane's modes are Plane's (pymavlink maps the VTOL types to them too)
     if mav_type is None:
         return {}
     return dict(mavutil.mode_mapping_bynumber(mav_type) or {})

@@ -548,6 +548,8 @@ def _progress(quiet: bool) -> Iterator[Callable[[int, int], None] | None]:
     def update(done: int, total: int) -> None:
         bar.n = int(100 * done / max(total, 1))
         bar.refresh()
+        if done >= total:  # cleared before anything the reader logs after its last step
+            bar.close()
 
     try:
         yield update
