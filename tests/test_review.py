@@ -390,6 +390,30 @@ def test_a_guessed_aileron_output_is_said(synthetic):
     assert not any("guessed" in w for w in rv.warnings)
 
 
+def test_a_flaperon_or_elevon_is_the_aileron_when_there_is_none_and_is_said():
+    from warpbridge.bridge.commands.fclog import ardupilot_ailerons, px4_ailerons
+
+    flaperons = {"SERVO1_FUNCTION": 19.0, "SERVO2_FUNCTION": 25.0, "SERVO5_FUNCTION": 24.0}
+    assert ardupilot_ailerons(flaperons) == [2, 5]  # roll mixed with flaps, in output order
+    assert ardupilot_ailerons({**flaperons, "SERVO6_FUNCTION": 4.0}) == [6, 2, 5]  # an aileron first
+    elevons = {"PWM_MAIN_FUNC1": 201.0, "PWM_MAIN_FUNC2": 202.0, "CA_SV_CS0_TYPE": 5.0, "CA_SV_CS1_TYPE": 6.0}
+    assert px4_ailerons(elevons) == [1, 2]
+    assert px4_ailerons({**elevons, "PWM_MAIN_FUNC3": 203.0, "CA_SV_CS2_TYPE": 1.0}) == [3, 1, 2]
+
+
+def test_a_mixed_roll_output_read_as_the_aileron_is_a_warning(synthetic):
+    fc, _, _ = synthetic
+    flaperon = replace(fc, aileron_channels=[1], params={**fc.params, "SERVO1_FUNCTION": 24.0})
+    rv, flight, _ = review(flaperon, None)
+    assert flight.aileron_channel == 1
+    assert any(w.startswith("no aileron among the FC's outputs: output 1 (left flaperon) is read as the aileron")
+               for w in rv.warnings)
+    rv, _, _ = review(flaperon, None, channel=1)  # named by the user: nothing to say
+    assert not any("mixed" in w for w in rv.warnings)
+    rv, _, _ = review(fc, None)
+    assert not any("mixed" in w for w in rv.warnings)
+
+
 def test_an_unchecked_join_is_a_warning(synthetic):
     fc, _, cl = synthetic
     bare = replace(fc, outputs_t=np.zeros(0), outputs=np.zeros((0, 16)))

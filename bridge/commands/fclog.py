@@ -28,13 +28,19 @@ from pathlib import Path
 import numpy as np
 
 from warpbridge.bridge.errors import UserError
+from warpbridge.bridge.outputcheck import (
+    ARDUPILOT_AILERON,
+    ARDUPILOT_MIXED,
+    ARDUPILOT_NAMES,
+    PX4_AILERON,
+    PX4_MIXED,
+    PX4_SURFACES,
+)
 
 log = logging.getLogger(__name__)
 
 FC_LOG_SUFFIXES = {".bin": "dataflash", ".tlog": "tlog", ".ulg": "ulog"}
 BRIDGE_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the bridge's named values in a tlog
-ARDUPILOT_AILERON_FUNCTION = 4  # SERVOn_FUNCTION of an aileron
-PX4_AILERON_TYPES = (1, 2)  # CA_SV_CSn_TYPE: left, right aileron
 PX4_SERVO_FUNCTION0 = 201  # PWM_MAIN_FUNCn of "Servo 1"
 MAX_CHANNELS = 32  # ArduPilot's SERVO1..32 (RCOU, RCO2, RCO3; SERVO_OUTPUT_RAW ports 0 and 1)
 PX4_MAX_CHANNELS = 16  # PX4's actuator_outputs.output[16]
@@ -416,21 +422,33 @@ def _outputs_array(rows: list[tuple[float, list[float]]]) -> tuple[np.ndarray, n
 
 
 def ardupilot_ailerons(params: dict[str, float]) -> list[int]:
-    """1-based outputs whose ``SERVOn_FUNCTION`` is an aileron."""
-    return sorted(int(k[5:-9]) for k, v in params.items()
-                  if k.startswith("SERVO") and k.endswith("_FUNCTION") and k[5:-9].isdigit()
-                  and int(v) == ARDUPILOT_AILERON_FUNCTION)
+    """1-based outputs that carry roll, as the bridge's output check names them: ailerons (``SERVOn_FUNCTION``
+    4, 18) first, then outputs carrying roll mixed with another axis (flaperons, elevons, spoilers), each in
+    output order."""
+    fn = {int(k[5:-9]): int(v) for k, v in params.items() if re.fullmatch(r"SERVO\d+_FUNCTION", k)}
+    return (sorted(ch for ch, f in fn.items() if f in ARDUPILOT_AILERON)
+            + sorted(ch for ch, f in fn.items() if f in ARDUPILOT_MIXED))
 
 
 def px4_ailerons(params: dict[str, float]) -> list[int]:
-    """1-based PWM outputs whose function is a servo that the control allocation calls an aileron."""
-    out = []
+    """1-based PWM outputs whose servo the control allocation calls an aileron, then those it calls an elevon
+    (roll mixed with pitch), each in output order."""
+    kind = {}
     for k, v in params.items():
         if k.startswith("PWM_MAIN_FUNC") and k[13:].isdigit():
             servo = int(v) - PX4_SERVO_FUNCTION0
-            if 0 <= servo < 8 and int(params.get(f"CA_SV_CS{servo}_TYPE", 0)) in PX4_AILERON_TYPES:
-                out.append(int(k[13:]))
-    return sorted(out)
+            if 0 <= servo < 8:
+                kind[int(k[13:])] = int(params.get(f"CA_SV_CS{servo}_TYPE", 0))
+    return (sorted(ch for ch, t in kind.items() if t in PX4_AILERON)
+            + sorted(ch for ch, t in kind.items() if t in PX4_MIXED))
+
+
+def roll_surface(fc: FcLog, channel: int) -> str:
+    """What output ``channel`` is by the log's parameters ("left flaperon"), "" when they do not say."""
+    if fc.autopilot == "px4":
+        servo = int(fc.params.get(f"PWM_MAIN_FUNC{channel}", 0)) - PX4_SERVO_FUNCTION0
+        return PX4_SURFACES.get(int(fc.params.get(f"CA_SV_CS{servo}_TYPE", 0)), "") if 0 <= servo < 8 else ""
+    return ARDUPILOT_NAMES.get(int(fc.params.get(f"SERVO{channel}_FUNCTION", -1)), "")
 
 
 def _mode_event(t: float, name: str) -> FcEvent:

@@ -29,7 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbridge.bridge.commands.fclog import MAX_CHANNELS, FcEvent, FcLog, Series, check_readable, read_fc_log
+from warpbridge.bridge.commands.fclog import (
+    MAX_CHANNELS,
+    FcEvent,
+    FcLog,
+    Series,
+    check_readable,
+    read_fc_log,
+    roll_surface,
+)
 from warpbridge.bridge.commands.logfile import write_text_atomic
 from warpbridge.bridge.commands.logjoin import (
     WINGS,
@@ -439,6 +447,10 @@ def check_vehicle_and_channel(fc: FcLog, channel: int | None) -> list[str]:
         warnings.append(f"{said}: output {channel} reviewed as the aileron (--channel)")
     if (guess := guessed_aileron(fc, channel)) is not None:
         warnings.append(f"no aileron function in the log's parameters: guessed output {guess} (use --channel)")
+    used = next((ch for ch in fc.aileron_channels if fc.output(ch) is not None), None) if channel is None else None
+    if used is not None and "aileron" not in (name := roll_surface(fc, used)):
+        warnings.append(f"no aileron among the FC's outputs: output {used} ({name}) is read as the aileron; it "
+                        "carries roll mixed with another axis (use --channel for another output)")
     return warnings
 
 
