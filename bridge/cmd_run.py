@@ -145,11 +145,8 @@ def main(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     _jit.interpret()  # before anything imports the model's kernels
-    lock = InstanceLock(config.params_file).acquire("run --check" if args.check else "run")
-    try:
+    with InstanceLock(config.params_file).acquire("run --check" if args.check else "run"):
         return _main(args, config)
-    finally:
-        lock.release()
 
 
 def _main(args: argparse.Namespace, config: Config) -> int:

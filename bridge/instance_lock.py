@@ -8,12 +8,12 @@ however it ends, so a crash leaves nothing to clean up.
 
 from __future__ import annotations
 
-import fcntl
 import logging
 import os
 from pathlib import Path
 
 from warpbridge.bridge.errors import UserError
+from warpbridge.hw.base import lock_exclusive
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +35,7 @@ class InstanceLock:
                         "refused", what, self.path, e.strerror or e)
             return self
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            lock_exclusive(fd)  # the flock the bridge's serial ports take too
         except BlockingIOError:
             holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
             os.close(fd)

@@ -260,7 +260,7 @@ def _stamp_offset(cl: CycleLog) -> tuple[float, float, float, float, int] | None
 
 def aileron_series(fc: FcLog, channel: int | None = None) -> tuple[int, Series] | None:
     """The FC's aileron output (channel, series): ``channel`` or the first output the parameters call
-    an aileron, else the logged output that moves most (``guessed_aileron`` says when it is guessed)."""
+    an aileron, else the logged output that moves most (``review`` says when it is guessed)."""
     chans = [channel] if channel is not None else list(fc.aileron_channels)
     for ch in chans:
         s = fc.output(ch)
@@ -271,15 +271,6 @@ def aileron_series(fc: FcLog, channel: int | None = None) -> tuple[int, Series] 
     ch = _most_moving_output(fc)
     s = None if ch is None else fc.output(ch)
     return (ch, s) if s is not None else None
-
-
-def guessed_aileron(fc: FcLog, channel: int | None = None) -> int | None:
-    """The output taken for the aileron when neither ``channel`` nor the log's parameters name one (the output
-    that moves most), else None."""
-    if channel is not None or any(fc.output(ch) is not None for ch in fc.aileron_channels):
-        return None
-    ail = aileron_series(fc)
-    return ail[0] if ail is not None else None
 
 
 def _most_moving_output(fc: FcLog) -> int | None:

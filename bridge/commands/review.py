@@ -45,7 +45,6 @@ from warpbridge.bridge.commands.logjoin import (
     CycleLog,
     aileron_series,
     align,
-    guessed_aileron,
     join_mismatch,
     join_unchecked,
     read_cycle_log,
@@ -445,12 +444,13 @@ def check_vehicle_and_channel(fc: FcLog, channel: int | None) -> list[str]:
         if channel is None:
             raise UserError(f"{fc.path}: {said}; give --channel N to review output N as the aileron anyway")
         warnings.append(f"{said}: output {channel} reviewed as the aileron (--channel)")
-    if (guess := guessed_aileron(fc, channel)) is not None:
-        warnings.append(f"no aileron function in the log's parameters: guessed output {guess} (use --channel)")
-    used = next((ch for ch in fc.aileron_channels if fc.output(ch) is not None), None) if channel is None else None
-    if used is not None and "aileron" not in (name := roll_surface(fc, used)):
-        warnings.append(f"no aileron among the FC's outputs: output {used} ({name}) is read as the aileron; it "
-                        "carries roll mixed with another axis (use --channel for another output)")
+    if channel is None and (ail := aileron_series(fc)) is not None:  # the output taken when none is named
+        used = ail[0]
+        if used not in fc.aileron_channels:
+            warnings.append(f"no aileron function in the log's parameters: guessed output {used} (use --channel)")
+        elif "aileron" not in (name := roll_surface(fc, used)):
+            warnings.append(f"no aileron among the FC's outputs: output {used} ({name}) is read as the aileron; "
+                            "it carries roll mixed with another axis (use --channel for another output)")
     return warnings
 
 
